@@ -1,0 +1,67 @@
+"""
+The ``absscale`` command: one verb per tool module under ``absscale_ros.tools``.
+
+Each tool module defines ``add_arguments(parser)`` and ``run(args) -> int``. Modules are
+imported only when their verb is used, so ``absscale bag info`` does not load GTSAM.
+"""
+import argparse
+import importlib
+import logging
+import sys
+
+from absscale_ros.core.errors import AbsScaleError
+
+# verb path -> (module, one-line help). Add a line here when a tool is added.
+COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
+    ('run',): ('absscale_ros.tools.run', 'replay a bag through the node graph, write outputs'),
+    ('bag', 'info'): ('absscale_ros.tools.bag_info', 'topics, types, counts, image sizes of a bag'),
+    ('bench', 'replay'): ('absscale_ros.tools.bench_replay', 'bag_replay step-mode throughput'),
+    ('simulate',): ('absscale_ros.tools.simulate', 'render a handheld video with ground truth'),
+    ('bench', 'render'): ('absscale_ros.tools.bench_render', 'simulator rendering speed'),
+    ('detect',): ('absscale_ros.tools.detect', 'detect target vertices in image files'),
+    ('bench', 'detect'): ('absscale_ros.tools.bench_detect', 'detection accuracy against gt.json'),
+}
+
+
+def _usage() -> str:
+    lines = ['usage: absscale COMMAND [...]', '', 'commands:']
+    for path, (module, text) in COMMANDS.items():
+        if importlib.util.find_spec(module) is not None:
+            lines.append(f'  {" ".join(path):<16} {text}')
+    return '\n'.join(lines)
+
+
+def _find(argv: list[str]) -> tuple[tuple[str, ...], list[str]] | None:
+    for n in (2, 1):
+        path = tuple(argv[:n])
+        if path in COMMANDS:
+            return path, argv[n:]
+    return None
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    found = _find(argv)
+    if found is None:
+        print(_usage(), file=sys.stderr if argv and argv[0] not in ('-h', '--help') else sys.stdout)
+        return 0 if argv and argv[0] in ('-h', '--help') else 2
+    path, rest = found
+    module_name, text = COMMANDS[path]
+    module = importlib.import_module(module_name)
+    parser = argparse.ArgumentParser(prog='absscale ' + ' '.join(path), description=text)
+    parser.add_argument('-v', '--verbose', action='store_true', help='debug logging')
+    module.add_arguments(parser)
+    args = parser.parse_args(rest)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
+                        format='%(levelname)s %(name)s: %(message)s')
+    try:
+        return int(module.run(args))
+    except AbsScaleError as err:  # expected failures: one line, no traceback
+        print(f'absscale {" ".join(path)}: error: {err}', file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == '__main__':
+    sys.exit(main())
