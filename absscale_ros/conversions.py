@@ -14,13 +14,18 @@ array's buffer: one copy, and the generated setter then stores it as is, even wi
 byte when field checks are on; a list or an ndarray is about 100x slower).
 """
 import array
+from collections.abc import Mapping, Sequence
+from types import MappingProxyType
 from typing import Any
 
 from builtin_interfaces.msg import Time
 import cv2
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Path
 import numpy as np
 import numpy.typing as npt
-from sensor_msgs.msg import CameraInfo, CompressedImage, Image
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2, PointField
 
 from absscale_ros.core import errors
 from absscale_ros.core.types import CameraModel
@@ -147,6 +152,80 @@ def array_to_image_msg(image: npt.ArrayLike, encoding: str, stamp_ns: int = 0,
     return msg
 
 
+def _image_view(msg: Any) -> tuple[np.ndarray, str]:
+    """Return the message's pixels as a strided view (no copy unless big-endian) and encoding."""
+    encoding = str(msg.encoding)
+    dtype, channels = _encoding_info(encoding)
+    height, width, step = int(msg.height), int(msg.width), int(msg.step)
+    row_bytes = width * channels * dtype.itemsize
+    if step < row_bytes:
+        raise errors.MessageError(
+            f'{encoding} image step {step} < width {width} x {channels * dtype.itemsize} '
+            f'bytes per pixel = {row_bytes}')
+    buffer = msg.data
+    size = len(buffer)
+    if size < step * height:
+        raise errors.MessageError(
+            f'{encoding} image data has {size} bytes < step {step} x height {height} = '
+            f'{step * height}')
+    big = bool(msg.is_bigendian) and dtype.itemsize > 1
+    wire_dtype = dtype.newbyteorder('>' if big else '<')
+    shape: tuple[int, ...] = (height, width, channels)
+    strides: tuple[int, ...] = (step, channels * dtype.itemsize, dtype.itemsize)
+    if channels == 1:
+        shape, strides = shape[:2], strides[:2]
+    if height * width == 0:
+        return np.zeros(shape, dtype), encoding
+    # np.ndarray over the message's own buffer: a view, so no pixel is copied.
+    view = np.ndarray(shape, wire_dtype, buffer=buffer, strides=strides)
+    return (view.astype(dtype) if big else view), encoding
+
+
+def image_msg_to_array(msg: Any) -> np.ndarray:
+    """
+    Return an Image's pixels in their native layout, sharing memory with ``msg.data``.
+
+    Layout: HxW for one-channel encodings (mono8, mono16, 16UC1, 32FC1 and bayer raw), HxWxC in
+    the encoding's channel order otherwise; YUV 4:2:2 ('uyvy'/'yuv422', 'yuyv'/'yuv422_yuy2')
+    stays packed as HxWx2 uint8 (use :func:`image_msg_to_bgr` to decode it). Row padding is
+    skipped with strides, so the view may not be C-contiguous. Big-endian 16-bit data is the
+    one case that is copied, into native byte order.
+
+    :param msg: ``sensor_msgs/Image`` from rclpy or rosbags.
+    :raises errors.MessageError: on an unknown encoding, a step too small for the width or
+        data too short for step x height.
+    """
+    return _image_view(msg)[0]
+
+
+def image_msg_to_bgr(msg: Any) -> npt.NDArray[np.uint8]:
+    """
+    Return an Image as a C-contiguous HxWx3 uint8 BGR array.
+
+    bgr8 without row padding is returned without copying (it shares memory with ``msg.data``).
+    16-bit images are scaled to 8 bits over their full range (x 255 / 65535, as cv_bridge
+    does); YUV 4:2:2 is decoded with OpenCV's BT.601 tables and bayer raw is demosaiced with
+    OpenCV's bilinear method.
+
+    :raises errors.MessageError: on a malformed message or a 32FC1 (depth) image.
+    """
+    image, encoding = _image_view(msg)
+    if encoding == '32FC1':
+        raise errors.MessageError('32FC1 is a depth or float image, not convertible to BGR')
+    if image.dtype == np.uint16:
+        image = cv2.convertScaleAbs(np.ascontiguousarray(image), alpha=255.0 / 65535.0)
+    image = np.ascontiguousarray(image)
+    if encoding in ('bgr8', 'bgr16', '8UC3'):
+        return image
+    if encoding in _YUV_TO_BGR:
+        return cv2.cvtColor(image, _YUV_TO_BGR[encoding])
+    if encoding in _BAYER_TO_BGR:
+        return cv2.cvtColor(image, _BAYER_TO_BGR[encoding])
+    codes = {'rgb8': cv2.COLOR_RGB2BGR, 'rgb16': cv2.COLOR_RGB2BGR, 'bgra8': cv2.COLOR_BGRA2BGR,
+             'rgba8': cv2.COLOR_RGBA2BGR}
+    return cv2.cvtColor(image, codes.get(encoding, cv2.COLOR_GRAY2BGR))
+
+
 # --------------------------------------------------------------------------------------------
 # Compressed images
 # --------------------------------------------------------------------------------------------
@@ -196,12 +275,128 @@ def bgr_to_compressed_msg(image: npt.ArrayLike, fmt: str = 'jpeg', quality: int 
     return msg
 
 
+def _compressed_buffer(msg: Any) -> npt.NDArray[np.uint8]:
+    fmt = str(msg.format).lower()
+    # image_transport writes 'jpeg', 'png' or '<enc>; <jpeg|png> compressed <enc>'; the depth
+    # plugin's 'compressedDepth' payload starts with a private header we do not parse.
+    words = fmt.split(';')[-1].split()
+    kind = words[0] if words else ''
+    if 'compresseddepth' in fmt or kind not in ('', 'jpeg', 'jpg', 'png'):
+        raise errors.MessageError(f'unsupported CompressedImage format {msg.format!r}; '
+                                  "expected 'jpeg' or 'png'")
+    data = np.frombuffer(msg.data, np.uint8)
+    if data.size == 0:
+        raise errors.MessageError(f'CompressedImage ({msg.format!r}) has no data')
+    return data
+
+
+def _decode(msg: Any, flags: int) -> np.ndarray:
+    data = _compressed_buffer(msg)
+    image = cv2.imdecode(data, flags)
+    if image is None:
+        raise errors.MessageError(f'could not decode {data.size} bytes of CompressedImage '
+                                  f'({msg.format!r}), first bytes {bytes(data[:8]).hex()}')
+    return image
+
+
+def compressed_msg_to_bgr(msg: Any) -> npt.NDArray[np.uint8]:
+    """
+    Return a JPEG or PNG CompressedImage as HxWx3 uint8 BGR.
+
+    Grey images are expanded to three channels and 16-bit PNGs reduced to 8 bits. EXIF
+    orientation is ignored: camera frames are used as the sensor saw them.
+
+    :param msg: ``sensor_msgs/CompressedImage`` from rclpy or rosbags.
+    :raises errors.MessageError: on an unsupported format or undecodable data.
+    """
+    return _decode(msg, cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
+
+
+def compressed_msg_to_array(msg: Any) -> np.ndarray:
+    """
+    Return a CompressedImage decoded without changing its depth or channel count.
+
+    :returns: HxW uint8 or uint16 for grey images (a 16-bit PNG stays uint16), HxWx3 in BGR
+        order or HxWx4 in BGRA order for colour ones, whatever encoding the publisher started
+        from (compressed_image_transport always compresses colour as BGR).
+    :raises errors.MessageError: on an unsupported format or undecodable data.
+    """
+    return _decode(msg, cv2.IMREAD_UNCHANGED)
+
+
 # --------------------------------------------------------------------------------------------
 # Camera info
 # --------------------------------------------------------------------------------------------
 
 # Number of D coefficients ROS writes for each model ('none' goes out as zero plumb_bob).
 _DIST_SIZES = {'plumb_bob': 5, 'rational_polynomial': 8, 'equidistant': 4}
+
+
+def _checked_dist(model: str, dist: npt.NDArray[np.float64]) -> tuple[str, np.ndarray]:
+    """Return the CameraModel distortion model and coefficients for a CameraInfo's D."""
+    if dist.size == 0:
+        return 'none', dist
+    if model == '':
+        if np.any(dist != 0.0):
+            raise errors.MessageError(f'CameraInfo has {dist.size} non-zero D coefficients '
+                                      'but no distortion_model')
+        return 'none', np.zeros(0)
+    if model not in _DIST_SIZES:
+        raise errors.MessageError(f'unsupported distortion_model {model!r}; supported: '
+                                  f'{", ".join(_DIST_SIZES)}')
+    size = _DIST_SIZES[model]
+    if model == 'plumb_bob' and dist.size == 4:
+        dist = np.append(dist, 0.0)  # k1 k2 p1 p2 without k3, as some drivers write it
+    elif dist.size > size and not np.any(dist[size:] != 0.0):
+        dist = dist[:size]  # trailing zeros some drivers pad D with
+    if dist.size != size:
+        raise errors.MessageError(f'{model} needs {size} D coefficients, got {dist.size}')
+    return model, dist
+
+
+def _apply_roi_binning(msg: Any, width: int, height: int,
+                       K: np.ndarray) -> tuple[int, int, np.ndarray]:
+    """Return the size and K of the published image after ROI crop and binning."""
+    # As image_geometry does: the calibration is at full resolution, the image may not be.
+    roi = msg.roi
+    bin_x, bin_y = max(int(msg.binning_x), 1), max(int(msg.binning_y), 1)
+    K = K.copy()
+    if int(roi.width) and int(roi.height):
+        K[0, 2] -= int(roi.x_offset)
+        K[1, 2] -= int(roi.y_offset)
+        width, height = int(roi.width), int(roi.height)
+    K[0, :] /= bin_x
+    K[1, :] /= bin_y
+    return width // bin_x, height // bin_y, K
+
+
+def camera_info_to_model(msg: Any) -> CameraModel:
+    """
+    Return the camera model of a ``sensor_msgs/CameraInfo``.
+
+    Supports 'plumb_bob', 'rational_polynomial' and 'equidistant'; an empty D (or an empty
+    model with all-zero D) gives 'none'. ROI and binning, when set, are applied to the size and
+    K, as image_geometry does. R and P are ignored: frames are used unrectified.
+
+    :raises errors.MessageError: if the size is zero, K is all zeros (uncalibrated camera) or
+        has a non-positive focal length, K or D hold NaN or inf, or D does not fit the model.
+    """
+    width, height = int(msg.width), int(msg.height)
+    if width <= 0 or height <= 0:
+        raise errors.MessageError(f'CameraInfo image size is {width}x{height}')
+    K = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
+    dist = np.asarray(msg.d, dtype=np.float64).ravel()
+    if not np.all(np.isfinite(K)) or not np.all(np.isfinite(dist)):
+        raise errors.MessageError(f'CameraInfo has NaN or inf: K={K.ravel().tolist()}, '
+                                  f'D={dist.tolist()}')
+    if not np.any(K != 0.0):
+        raise errors.MessageError('CameraInfo K is all zeros: the camera is not calibrated')
+    if K[0, 0] <= 0.0 or K[1, 1] <= 0.0:
+        raise errors.MessageError(f'CameraInfo K has fx={K[0, 0]}, fy={K[1, 1]}: focal '
+                                  'lengths must be positive')
+    model, dist = _checked_dist(str(msg.distortion_model), dist)
+    width, height, K = _apply_roi_binning(msg, width, height, K)
+    return CameraModel(width=width, height=height, K=K, dist=dist, distortion_model=model)
 
 
 def camera_model_to_info_msg(model: CameraModel, stamp_ns: int = 0,
@@ -226,3 +421,330 @@ def camera_model_to_info_msg(model: CameraModel, stamp_ns: int = 0,
     msg.r = np.eye(3).reshape(9)
     msg.p = np.hstack([model.K, np.zeros((3, 1))]).astype(np.float64).reshape(12)
     return msg
+
+
+# --------------------------------------------------------------------------------------------
+# Point clouds
+# --------------------------------------------------------------------------------------------
+
+_FIELD_DTYPES: dict[int, np.dtype] = {
+    PointField.INT8: np.dtype(np.int8), PointField.UINT8: np.dtype(np.uint8),
+    PointField.INT16: np.dtype(np.int16), PointField.UINT16: np.dtype(np.uint16),
+    PointField.INT32: np.dtype(np.int32), PointField.UINT32: np.dtype(np.uint32),
+    PointField.FLOAT32: np.dtype(np.float32), PointField.FLOAT64: np.dtype(np.float64),
+}
+_DTYPE_FIELDS = {dtype: code for code, dtype in _FIELD_DTYPES.items()}
+
+
+def _cloud_dtype(msg: Any) -> np.dtype:
+    """Return the structured dtype of one point on the wire (itemsize = point_step)."""
+    order = '>' if msg.is_bigendian else '<'
+    point_step = int(msg.point_step)
+    names, formats, offsets = [], [], []
+    for field in msg.fields:
+        code, offset, count = int(field.datatype), int(field.offset), int(field.count)
+        if code not in _FIELD_DTYPES:
+            raise errors.MessageError(f'PointCloud2 field {field.name!r} has unknown datatype '
+                                      f'{code} (1..8 are INT8..FLOAT64)')
+        base = _FIELD_DTYPES[code].newbyteorder(order)
+        # count 0 is written by some drivers for a scalar; ROS means 1 element either way.
+        dtype = np.dtype((base, (count,))) if count > 1 else base
+        if offset + dtype.itemsize > point_step:
+            raise errors.MessageError(
+                f'PointCloud2 field {field.name!r} at offset {offset} with {dtype.itemsize} '
+                f'bytes does not fit point_step {point_step}')
+        names.append(str(field.name))
+        formats.append(dtype)
+        offsets.append(offset)
+    try:
+        return np.dtype({'names': names, 'formats': formats, 'offsets': offsets,
+                         'itemsize': point_step})
+    except ValueError as err:  # duplicate or empty names
+        raise errors.MessageError(f'PointCloud2 fields {names} are invalid: {err}') from None
+
+
+def cloud_msg_to_array(msg: Any, skip_nans: bool = False) -> np.ndarray:
+    """
+    Return a ``sensor_msgs/PointCloud2`` as a structured numpy array.
+
+    :param msg: PointCloud2 from rclpy or rosbags.
+    :param skip_nans: drop points whose x, y or z (those present) is not finite; by default
+        every point is kept, NaNs included, whatever ``is_dense`` says.
+    :returns: (height * width,) array, organised clouds flattened row-major, with the
+        message's field names, offsets and dtypes (count > 1 as a subarray) and itemsize
+        point_step. Little-endian clouds without row padding are a view on ``msg.data``;
+        big-endian ones are copied into native byte order.
+    :raises errors.MessageError: on an unknown field type, a field beyond point_step,
+        row_step < width x point_step or data length != row_step x height.
+    """
+    dtype = _cloud_dtype(msg)
+    height, width = int(msg.height), int(msg.width)
+    point_step, row_step = int(msg.point_step), int(msg.row_step)
+    if row_step < width * point_step:
+        raise errors.MessageError(f'PointCloud2 row_step {row_step} < width {width} x '
+                                  f'point_step {point_step} = {width * point_step}')
+    size = len(msg.data)
+    if size != row_step * height:
+        raise errors.MessageError(f'PointCloud2 data has {size} bytes != row_step {row_step} '
+                                  f'x height {height} = {row_step * height}')
+    if height * width == 0:
+        points = np.zeros(0, dtype)
+    elif point_step == 0:
+        raise errors.MessageError(f'PointCloud2 has {height * width} points but point_step 0')
+    else:
+        rows = np.ndarray((height, width), dtype, buffer=msg.data, strides=(row_step, point_step))
+        # reshape copies only when rows are padded; unpadded clouds stay a view.
+        points = rows.reshape(-1)
+    if msg.is_bigendian:
+        points = points.astype(dtype.newbyteorder('='))
+    if skip_nans:
+        keep = np.ones(points.shape[0], dtype=bool)
+        for axis in ('x', 'y', 'z'):
+            if axis in points.dtype.names:
+                values = points[axis]
+                keep &= np.isfinite(values.reshape(values.shape[0], -1)).all(axis=1)
+        points = points[keep]
+    return points
+
+
+def _fields_from_dtype(dtype: np.dtype) -> list[PointField]:
+    fields = []
+    for name in dtype.names or ():
+        field_dtype, offset = dtype.fields[name][:2]
+        base, shape = field_dtype.base, field_dtype.shape
+        code = _DTYPE_FIELDS.get(base.newbyteorder('='))
+        if code is None or base.names is not None:
+            raise ValueError(f'field {name!r} has dtype {field_dtype}, which PointCloud2 '
+                             'cannot carry (INT8..FLOAT64 scalars or fixed arrays only)')
+        fields.append(PointField(name=name, offset=int(offset), datatype=code,
+                                 count=int(np.prod(shape, dtype=np.int64))))
+    return fields
+
+
+def array_to_cloud_msg(points: np.ndarray, stamp_ns: int = 0,
+                       frame_id: str = 'map') -> PointCloud2:
+    """
+    Return a structured array as an unorganised PointCloud2 (height 1, little-endian).
+
+    Field offsets and point_step come from the dtype, so padding in it is kept. ``is_dense`` is
+    True when every x, y and z present is finite.
+
+    :param points: structured array of any shape (flattened row-major) whose fields are
+        INT8..FLOAT64 scalars or fixed-size subarrays (sent with count > 1).
+    :raises ValueError: if ``points`` is not structured or a field type has no PointField code.
+    """
+    points = np.asarray(points)
+    if points.dtype.names is None:
+        raise ValueError(f'array_to_cloud_msg needs a structured array, got {points.dtype}')
+    fields = _fields_from_dtype(points.dtype)
+    points = points.reshape(-1).astype(points.dtype.newbyteorder('<'), copy=False)
+    msg = PointCloud2()
+    _header(msg, stamp_ns, frame_id)
+    msg.height, msg.width = 1, int(points.shape[0])
+    msg.fields = fields
+    msg.is_bigendian = False
+    msg.point_step = int(points.dtype.itemsize)
+    msg.row_step = msg.point_step * msg.width
+    msg.data = _bytes_array(points)
+    msg.is_dense = all(bool(np.isfinite(points[axis]).all())
+                       for axis in ('x', 'y', 'z') if axis in points.dtype.names)
+    return msg
+
+
+def pack_rgb(colors: npt.ArrayLike) -> npt.NDArray[np.float32]:
+    """
+    Return (N, 3) uint8 RGB colours packed as PCL does: 0x00RRGGBB bit-cast to float32.
+
+    :raises ValueError: if ``colors`` is not (N, 3) or outside [0, 255].
+    """
+    colors = np.asarray(colors)
+    if colors.ndim != 2 or colors.shape[1] != 3:
+        raise ValueError(f'colors must be (N, 3) RGB, got shape {colors.shape}')
+    if colors.size and (colors.min() < 0 or colors.max() > 255):
+        raise ValueError(f'colors must be in [0, 255], got [{colors.min()}, {colors.max()}]')
+    rgb = colors.astype(np.uint32)
+    packed = (rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2]
+    return packed.view(np.float32)
+
+
+def unpack_rgb(packed: npt.ArrayLike) -> npt.NDArray[np.uint8]:
+    """
+    Return (N, 3) uint8 RGB from PCL-packed colours (float32 bit patterns or uint32).
+
+    The top byte (alpha in 'rgba' fields) is ignored.
+    """
+    packed = np.asarray(packed).reshape(-1)
+    if packed.dtype.kind == 'f':
+        if packed.dtype.itemsize != 4:
+            raise ValueError(f'packed colours must be float32 or uint32, got {packed.dtype}')
+        bits = packed.astype(np.float32, copy=False).view(np.uint32)
+    else:
+        bits = packed.astype(np.uint32, copy=False)
+    shifts = np.array([16, 8, 0], dtype=np.uint32)
+    return ((bits[:, None] >> shifts) & 0xFF).astype(np.uint8)
+
+
+def xyz_rgb_to_cloud_msg(points: npt.ArrayLike, colors: npt.ArrayLike | None = None,
+                         stamp_ns: int = 0, frame_id: str = 'map',
+                         extra: Mapping[str, npt.ArrayLike] | None = None) -> PointCloud2:
+    """
+    Return points (and colours and extra fields) as a PointCloud2 RViz can show.
+
+    :param points: (N, 3) positions, m in ``frame_id``; sent as float32 x, y, z.
+    :param colors: (N, 3) uint8 RGB, sent as a packed float32 'rgb' field (see
+        :func:`pack_rgb`), or None for no colour.
+    :param extra: more per-point fields by name, each (N,) or (N, k) of a PointField type,
+        e.g. ``{'vertex_id': ids.astype(np.int32)}``.
+    :raises ValueError: on shapes that do not match N or names that collide.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f'points must be (N, 3), got shape {points.shape}')
+    n = points.shape[0]
+    columns: dict[str, np.ndarray] = {axis: points[:, i].astype(np.float32)
+                                      for i, axis in enumerate('xyz')}
+    if colors is not None:
+        columns['rgb'] = pack_rgb(colors)
+    for name, values in (extra or {}).items():
+        values = np.asarray(values)
+        if name in columns:
+            raise ValueError(f'extra field {name!r} collides with a standard field')
+        if values.shape[:1] != (n,) or values.ndim > 2:
+            raise ValueError(f'extra field {name!r} must be ({n},) or ({n}, k), '
+                             f'got {values.shape}')
+        columns[name] = values
+    if colors is not None and columns['rgb'].shape[0] != n:
+        raise ValueError(f'colors has {columns["rgb"].shape[0]} rows, points has {n}')
+    dtype = np.dtype([(name, values.dtype, values.shape[1:]) for name, values in columns.items()])
+    cloud = np.empty(n, dtype)
+    for name, values in columns.items():
+        cloud[name] = values
+    return array_to_cloud_msg(cloud, stamp_ns=stamp_ns, frame_id=frame_id)
+
+
+# --------------------------------------------------------------------------------------------
+# Paths
+# --------------------------------------------------------------------------------------------
+
+_UNIT_QUAT_TOL = 1e-3  # float32 round trips and printed YAML stay well inside this
+
+
+def path_msg_to_poses(msg: Any) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+    """
+    Return a ``nav_msgs/Path`` as poses and stamps.
+
+    :returns: poses (N, 7) float64 ``[x y z qx qy qz qw]`` (position in the path's frame, quat_xyzw
+        renormalised to unit length) and stamps_ns (N,) int64, each pose's own header stamp.
+    :raises errors.MessageError: if a quaternion is not unit length (within 1e-3) or a value is
+        not finite.
+    """
+    count = len(msg.poses)
+    poses = np.empty((count, 7), dtype=np.float64)
+    stamps_ns = np.empty(count, dtype=np.int64)
+    for i, stamped in enumerate(msg.poses):
+        p, q = stamped.pose.position, stamped.pose.orientation
+        poses[i] = (p.x, p.y, p.z, q.x, q.y, q.z, q.w)
+        stamps_ns[i] = stamp_to_ns(stamped.header.stamp)
+    if not np.all(np.isfinite(poses)):
+        bad = int(np.flatnonzero(~np.isfinite(poses).all(axis=1))[0])
+        raise errors.MessageError(f'Path pose {bad} has NaN or inf: {poses[bad].tolist()}')
+    norms = np.linalg.norm(poses[:, 3:], axis=1)
+    off = np.flatnonzero(np.abs(norms - 1.0) > _UNIT_QUAT_TOL)
+    if off.size:
+        raise errors.MessageError(f'Path pose {int(off[0])} quaternion has norm '
+                                  f'{norms[off[0]]:.6g}, not 1 ({off.size} of {count} poses)')
+    poses[:, 3:] /= norms[:, None]
+    return poses, stamps_ns
+
+
+def poses_to_path_msg(poses: npt.ArrayLike, stamps_ns: npt.ArrayLike, frame_id: str = 'map',
+                      stamp_ns: int | None = None) -> Path:
+    """
+    Return poses as a ``nav_msgs/Path``.
+
+    :param poses: (N, 7) ``[x y z qx qy qz qw]``, position in m, quat_xyzw unit length.
+    :param stamps_ns: (N,) stamp of each pose, ns.
+    :param stamp_ns: the path's header stamp; by default the last pose's stamp (0 if empty).
+    :raises ValueError: on mismatched shapes, non-finite values or non-unit quaternions.
+    """
+    poses = np.asarray(poses, dtype=np.float64)
+    stamps = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
+    if poses.ndim != 2 or poses.shape[1] != 7 or poses.shape[0] != stamps.shape[0]:
+        raise ValueError(f'need poses (N, 7) and stamps (N,), got {poses.shape} and '
+                         f'{stamps.shape}')
+    norms = np.linalg.norm(poses[:, 3:], axis=1)
+    if not np.all(np.isfinite(poses)) or np.any(np.abs(norms - 1.0) > _UNIT_QUAT_TOL):
+        raise ValueError('poses must be finite with unit quat_xyzw')
+    msg = Path()
+    if stamp_ns is None:
+        stamp_ns = int(stamps[-1]) if stamps.size else 0
+    _header(msg, stamp_ns, frame_id)
+    out = []
+    for pose, pose_stamp_ns in zip(poses.tolist(), stamps.tolist()):
+        stamped = PoseStamped()
+        _header(stamped, pose_stamp_ns, frame_id)
+        position, orientation = stamped.pose.position, stamped.pose.orientation
+        position.x, position.y, position.z = pose[:3]
+        orientation.x, orientation.y, orientation.z, orientation.w = pose[3:]
+        out.append(stamped)
+    msg.poses = out
+    return msg
+
+
+# --------------------------------------------------------------------------------------------
+# Diagnostics
+# --------------------------------------------------------------------------------------------
+
+_LEVELS = {'ok': DiagnosticStatus.OK, 'warn': DiagnosticStatus.WARN,
+           'error': DiagnosticStatus.ERROR, 'stale': DiagnosticStatus.STALE}
+
+
+def _level_byte(level: str | bytes | int) -> bytes:
+    if isinstance(level, str):
+        if level.lower() not in _LEVELS:
+            raise ValueError(f'diagnostic level must be one of {list(_LEVELS)}, got {level!r}')
+        return _LEVELS[level.lower()]
+    value = level[0] if isinstance(level, bytes) and len(level) == 1 else level
+    if not isinstance(value, int) or not 0 <= value <= 3:
+        raise ValueError(f'diagnostic level must be 0..3 (OK..STALE), got {level!r}')
+    return bytes([value])
+
+
+def _format_value(value: object) -> str:
+    if isinstance(value, (bool, np.bool_)):
+        return str(bool(value))
+    if isinstance(value, (float, np.floating)):
+        return format(float(value), '.6g')  # compact: 0.1 not 0.1000000000000000055...
+    if isinstance(value, np.integer):
+        return str(int(value))
+    return str(value)
+
+
+def diagnostic_status(name: str, level: str | bytes | int, message: str,
+                      values: Mapping[str, object] = MappingProxyType({}),
+                      hardware_id: str = 'absscale') -> DiagnosticStatus:
+    """
+    Return a ``diagnostic_msgs/DiagnosticStatus``.
+
+    :param level: 'ok', 'warn', 'error' or 'stale', or the message's byte constants
+        (``DiagnosticStatus.OK``...) or their integer values.
+    :param values: key/value pairs; floats are written with 6 significant digits.
+    :raises ValueError: on an unknown level.
+    """
+    return DiagnosticStatus(
+        level=_level_byte(level), name=name, message=message, hardware_id=hardware_id,
+        values=[KeyValue(key=str(key), value=_format_value(value))
+                for key, value in values.items()])
+
+
+def diagnostic_array(statuses: Sequence[DiagnosticStatus], stamp_ns: int) -> DiagnosticArray:
+    """Return statuses in a ``diagnostic_msgs/DiagnosticArray`` stamped ``stamp_ns``."""
+    msg = DiagnosticArray()
+    _header(msg, stamp_ns, '')
+    msg.status = list(statuses)
+    return msg
+
+
+def diagnostic_values(status: Any) -> dict[str, str]:
+    """Return a DiagnosticStatus's key/value pairs as a dict (the last one wins on repeats)."""
+    return {str(pair.key): str(pair.value) for pair in status.values}
