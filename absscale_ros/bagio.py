@@ -228,3 +228,51 @@ def image_size_of(header: bytes) -> tuple[int, int] | None:
             return int(w), int(h)
         i += 2 + length
     return None
+
+
+def header_stamp_ns(data: bytes) -> int | None:
+    """
+    Return the ``header.stamp`` of a CDR message whose first field is a std_msgs/Header.
+
+    Image, CompressedImage, CameraInfo and PointCloud2 all start with one; reading the stamp
+    from the bytes lets replay step on a frame without deserializing megabytes of pixels.
+    """
+    if len(data) < 12 or data[0] != 0:
+        return None
+    fmt = '<iI' if data[1] in (1, 3) else '>iI'  # CDR_LE / PL_CDR_LE vs big-endian kinds
+    sec, nanosec = struct.unpack_from(fmt, data, 4)
+    return int(sec) * 1_000_000_000 + int(nanosec)
+
+
+class ReplayCursor:
+    """
+    Walk a bag's messages with one message of look-ahead, optionally looping.
+
+    :param reader: an open ``BagReader``.
+    :param topics: topics to replay.
+    :param start_ns: first log time to replay, ns.
+    """
+
+    def __init__(self, reader: BagReader, topics: Iterable[str], start_ns: int,
+                 loop: bool = False) -> None:
+        self._reader, self._topics, self._start_ns, self._loop = reader, list(topics), \
+            start_ns, loop
+        self._iter = reader.messages(self._topics, start_ns=start_ns)
+        self._next: BagMessage | None = None
+        self.exhausted = False
+        self.loops = 0
+
+    def peek(self) -> BagMessage | None:
+        if self._next is None and not self.exhausted:
+            self._next = next(self._iter, None)
+            if self._next is None and self._loop:
+                self.loops += 1
+                self._iter = self._reader.messages(self._topics, start_ns=self._start_ns)
+                self._next = next(self._iter, None)
+            self.exhausted = self._next is None
+        return self._next
+
+    def take(self) -> BagMessage | None:
+        msg = self.peek()
+        self._next = None
+        return msg

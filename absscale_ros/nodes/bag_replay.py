@@ -1,0 +1,181 @@
+"""
+bag_replay: publish a bag's topics with their original types and bytes.
+
+Modes: ``rate`` (bag timing times ``rate``), ``fast`` (as fast as possible, may overrun slow
+subscribers), ``step`` (lossless: the next stepped message goes out only when every
+acknowledging node downstream has handled the previous one; see core/replay.py).
+"""
+import time
+from typing import Any
+
+from absscale_ros import bagio, conversions
+from absscale_ros.core import replay
+from absscale_ros.core.errors import AbsScaleError
+from absscale_ros.nodes import common
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from std_msgs.msg import Header
+
+IMAGE_TYPES = ('sensor_msgs/msg/Image', 'sensor_msgs/msg/CompressedImage')
+
+
+class BagReplayNode(Node):
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__('bag_replay', **kwargs)
+        p = self.declare_parameters('', [
+            ('bag', ''), ('mode', 'rate'), ('rate', 1.0), ('topics', ''), ('remap', ''),
+            ('start_offset_s', 0.0), ('loop', False), ('step_topics', ''),
+            ('step_timeout_s', 10.0), ('expect_nodes', ''), ('qos', 'reliable'),
+            ('progress_period_s', 5.0)])
+        self._p = {x.name: x.value for x in p}
+        if self._p['mode'] not in ('rate', 'fast', 'step'):
+            raise ValueError(f"mode must be rate, fast or step, not {self._p['mode']!r}")
+        self._bag = bagio.open_bag(self._p['bag'])
+        wanted = _csv(self._p['topics']) or list(self._bag.topics)
+        self._infos = {t: i for t, i in self._bag.topics.items() if t in wanted}
+        remap = dict(r.split(':=') for r in _csv(self._p['remap']))
+        qos = common.SENSOR if self._p['qos'] == 'sensor_data' else common.RELIABLE
+        self._pubs = {t: self.create_publisher(common.message_class(i.msgtype),
+                                               remap.get(t, t), qos)
+                      for t, i in self._infos.items()}
+        self._stepped = set(_csv(self._p['step_topics'])) or {
+            t for t, i in self._infos.items() if i.msgtype in IMAGE_TYPES}
+        self._tracker = replay.StepTracker(self._consumers_of)
+        self._consumers: dict[str, list[str]] = {}
+        self.total = sum(i.count for i in self._infos.values())
+        self.published = self.steps = self.timeouts = 0
+        self.finished = False
+        self._cursor: bagio.ReplayCursor | None = None
+        self._step_started = self._last_progress = time.monotonic()
+        self._create_ack_sub()
+        self._timer = self.create_timer(0.001, self._tick)
+
+    def _create_ack_sub(self) -> None:
+        self.create_subscription(Header, common.ACK_TOPIC, self._on_ack, common.RELIABLE)
+
+    def _consumers_of(self, topic: str) -> list[str]:
+        if topic not in self._consumers:
+            ackers = {i.node_name for i in self.get_publishers_info_by_topic(common.ACK_TOPIC)}
+            subs = self.get_subscriptions_info_by_topic(topic)
+            self._consumers[topic] = [i.node_name for i in subs if i.node_name in ackers]
+        return self._consumers[topic]
+
+    def _ready(self) -> bool:
+        """Step mode starts once every expected node can acknowledge."""
+        ackers = {i.node_name for i in self.get_publishers_info_by_topic(common.ACK_TOPIC)}
+        return set(_csv(self._p['expect_nodes'])) <= ackers
+
+    def _start(self) -> None:
+        start = self._bag.start_ns + int(self._p['start_offset_s'] * 1e9)
+        self._cursor = bagio.ReplayCursor(self._bag, self._infos, start, self._p['loop'])
+        self._t0 = (start, time.monotonic_ns())
+
+    def _tick(self) -> None:
+        if self.finished:
+            return
+        if self._cursor is None:
+            if self._p['mode'] == 'step' and not self._ready():
+                return
+            self._start()
+        if self._p['mode'] == 'step':
+            self._check_step_timeout()
+            if self._tracker.done:
+                self._advance_step()
+        else:
+            self._publish_due()
+        self._report_progress()
+
+    def _publish_due(self) -> None:
+        budget = 200  # yield to other callbacks between batches
+        while budget and not self.finished:
+            msg = self._cursor.peek() if self._cursor else None
+            if msg is None:
+                self._take()  # marks the replay finished
+                return
+            due = replay.due_wall_ns(msg.stamp_ns, self._t0[0], self._t0[1], self._p['rate'])
+            if self._p['mode'] == 'rate' and due > time.monotonic_ns():
+                return
+            self._publish(self._take())
+            budget -= 1
+
+    def _advance_step(self) -> None:
+        """Publish until one stepped message is out (or the bag ends)."""
+        while not self.finished:
+            msg = self._take()
+            if msg is None:
+                return
+            self._publish(msg)
+            if msg.topic in self._stepped:
+                stamp = bagio.header_stamp_ns(msg.data)
+                self._tracker.start(self._pubs[msg.topic].topic_name,
+                                    msg.stamp_ns if stamp is None else stamp)
+                self.steps += 1
+                self._step_started = time.monotonic()
+                if not self._tracker.done:
+                    return
+
+    def _on_ack(self, msg: Header) -> None:
+        try:
+            ack = replay.Ack.decode(msg.frame_id, conversions.stamp_to_ns(msg.stamp))
+        except ValueError as err:
+            self.get_logger().warning(str(err), throttle_duration_sec=5.0)
+            return
+        if self._tracker.on_ack(ack) and self._tracker.done and self._cursor is not None:
+            self._advance_step()
+
+    def _check_step_timeout(self) -> None:
+        if self._tracker.done or time.monotonic() - self._step_started < self._p['step_timeout_s']:
+            return
+        self.timeouts += 1
+        self.get_logger().warning(
+            f'step {self.steps}: no acknowledgement from {", ".join(self._tracker.pending())} '
+            f'after {self._p["step_timeout_s"]} s; moving on')
+        self._consumers.clear()  # the graph may have changed
+        self._tracker.stamp_ns = None
+
+    def _take(self) -> bagio.BagMessage | None:
+        assert self._cursor is not None
+        msg = self._cursor.take()
+        if msg is None:
+            self.finished = True
+            self.get_logger().info(f'replay finished: {self.published} messages, '
+                                   f'{self.steps} steps, {self.timeouts} step timeouts')
+        return msg
+
+    def _publish(self, msg: bagio.BagMessage) -> None:
+        self._pubs[msg.topic].publish(msg.data)  # serialized bytes: no re-encoding
+        self.published += 1
+
+    def _report_progress(self) -> None:
+        now = time.monotonic()
+        if now - self._last_progress >= self._p['progress_period_s']:
+            self._last_progress = now
+            self.get_logger().info(f'replayed {self.published}/{self.total} messages')
+
+    def destroy_node(self) -> None:
+        self._bag.__exit__(None, None, None)
+        super().destroy_node()
+
+
+def _csv(text: str) -> list[str]:
+    return [t.strip() for t in text.split(',') if t.strip()]
+
+
+def main(args: list[str] | None = None) -> None:
+    rclpy.init(args=args)
+    try:
+        node = BagReplayNode()
+    except AbsScaleError as err:
+        print(f'bag_replay: error: {err}')
+        rclpy.try_shutdown()
+        raise SystemExit(1)
+    try:
+        while rclpy.ok() and not node.finished:
+            rclpy.spin_once(node, timeout_sec=0.1)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()

@@ -1,0 +1,46 @@
+"""Pieces every node shares: QoS profiles, the step-mode acknowledgement, message classes."""
+import importlib
+from typing import Any, Iterable
+
+from absscale_ros.core.errors import BagError
+from absscale_ros.core.replay import Ack
+from rclpy.node import Node
+from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data, QoSProfile,
+                       ReliabilityPolicy)
+from std_msgs.msg import Header
+
+ACK_TOPIC = '/absscale/ack'
+# Offline runs are lossless: reliable, and deep enough for the non-stepped messages that
+# travel between two stepped frames (camera_info, diagnostics).
+RELIABLE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                      history=HistoryPolicy.KEEP_LAST)
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+SENSOR = qos_profile_sensor_data
+
+
+def message_class(msgtype: str) -> Any:
+    """Return the rclpy class for ``'pkg/msg/Name'``; BagError if it is not installed."""
+    try:
+        pkg, kind, name = msgtype.split('/')
+        return getattr(importlib.import_module(f'{pkg}.{kind}'), name)
+    except (ValueError, ImportError, AttributeError) as err:
+        raise BagError(f'unknown message type {msgtype!r} (no Python package provides it)') \
+            from err
+
+
+class StepAck:
+    """Publishes the acknowledgement the lossless replay waits for (see core/replay.py)."""
+
+    def __init__(self, node: Node) -> None:
+        self._node = node
+        self._pub = node.create_publisher(Header, ACK_TOPIC, RELIABLE)
+
+    def ack(self, stamp: Any, input_topic: str, outputs: Iterable[str] = ()) -> None:
+        """Say that this node handled ``input_topic`` at ``stamp`` and published ``outputs``."""
+        text = Ack(self._node.get_name(), self._resolve(input_topic), 0,
+                   tuple(self._resolve(o) for o in outputs)).encode()
+        self._pub.publish(Header(stamp=stamp, frame_id=text))
+
+    def _resolve(self, topic: str) -> str:
+        return self._node.resolve_topic_name(topic)

@@ -1,0 +1,65 @@
+"""Causal step tracking: a step completes only when every acking consumer has drained it."""
+from absscale_ros.core.replay import Ack, due_wall_ns, StepTracker
+import pytest
+
+GRAPH = {
+    '/cam': ['ingest'],
+    '/frames': ['detector', 'selector'],
+    '/vertices': ['selector'],
+    '/keyframes': ['sfm'],
+}
+
+
+def tracker() -> StepTracker:
+    return StepTracker(lambda topic: GRAPH.get(topic, []))
+
+
+def test_step_completes_after_whole_chain() -> None:
+    t = tracker()
+    t.start('/cam', 5)
+    assert not t.done
+    t.on_ack(Ack('ingest', '/cam', 5, ('/frames',)))
+    assert t.pending() == ['detector on /frames', 'selector on /frames']
+    t.on_ack(Ack('detector', '/frames', 5, ('/vertices',)))
+    t.on_ack(Ack('selector', '/frames', 5))
+    assert not t.done  # selector still owes the vertices
+    t.on_ack(Ack('selector', '/vertices', 5, ('/keyframes',)))
+    assert t.pending() == ['sfm on /keyframes']
+    t.on_ack(Ack('sfm', '/keyframes', 5))
+    assert t.done
+
+
+def test_ack_overtaking_its_announcement_is_not_lost() -> None:
+    t = tracker()
+    t.start('/cam', 7)
+    t.on_ack(Ack('detector', '/frames', 7))
+    t.on_ack(Ack('selector', '/frames', 7))
+    assert not t.done
+    t.on_ack(Ack('ingest', '/cam', 7, ('/frames',)))
+    assert t.done
+
+
+def test_stale_ack_is_ignored() -> None:
+    t = tracker()
+    t.start('/cam', 9)
+    assert not t.on_ack(Ack('ingest', '/cam', 8))
+    assert not t.done
+
+
+def test_topic_without_ackers_completes_at_once() -> None:
+    t = tracker()
+    t.start('/nobody', 1)
+    assert t.done
+
+
+def test_ack_text_round_trip_and_malformed() -> None:
+    ack = Ack('sfm', '/absscale/keyframes', 3, ('/a', '/b'))
+    assert Ack.decode(ack.encode(), 3) == ack
+    with pytest.raises(ValueError, match='malformed ack'):
+        Ack.decode('nonsense', 0)
+
+
+def test_due_time_scales_with_rate() -> None:
+    assert due_wall_ns(2_000, 1_000, 50, 2.0) == 550
+    with pytest.raises(ValueError):
+        due_wall_ns(0, 0, 0, 0.0)
