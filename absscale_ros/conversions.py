@@ -18,6 +18,8 @@ from collections.abc import Mapping, Sequence
 from types import MappingProxyType
 from typing import Any
 
+from absscale_ros.core import errors
+from absscale_ros.core.types import CameraModel
 from builtin_interfaces.msg import Time
 import cv2
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -26,9 +28,6 @@ from nav_msgs.msg import Path
 import numpy as np
 import numpy.typing as npt
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2, PointField
-
-from absscale_ros.core import errors
-from absscale_ros.core.types import CameraModel
 
 _NS_PER_S = 1_000_000_000
 _INT32_MIN, _INT32_MAX = -(2 ** 31), 2 ** 31 - 1

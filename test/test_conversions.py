@@ -1,13 +1,12 @@
 """Round trips between ROS Image/CompressedImage/Time messages and numpy (conversions)."""
-import cv2
+from absscale_ros import conversions
+from absscale_ros.core import errors
 from conversions_helpers import READERS, via_cdr
+import cv2
 from hypothesis import given, settings, strategies as st
 import numpy as np
 import pytest
 from sensor_msgs.msg import CompressedImage, Image
-
-from absscale_ros import conversions
-from absscale_ros.core import errors
 
 RNG_SEED = 7
 # encoding -> (dtype, channels) as the tests expect them, written out independently of the module.

@@ -1,12 +1,11 @@
 """CameraInfo <-> CameraModel (conversions), on rclpy and rosbags messages."""
+from absscale_ros import conversions
+from absscale_ros.core import errors
+from absscale_ros.core.types import CameraModel
 from conversions_helpers import READERS
 import numpy as np
 import pytest
 from sensor_msgs.msg import CameraInfo
-
-from absscale_ros import conversions
-from absscale_ros.core import errors
-from absscale_ros.core.types import CameraModel
 
 K = np.array([[612.5, 0.0, 319.25], [0.0, 610.0, 241.5], [0.0, 0.0, 1.0]])
 DISTORTIONS = {

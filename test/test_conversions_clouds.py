@@ -1,14 +1,13 @@
 """PointCloud2 <-> structured numpy arrays and packed RGB (conversions)."""
 import struct
 
+from absscale_ros import conversions
+from absscale_ros.core import errors
 from conversions_helpers import READERS
 from hypothesis import given, settings, strategies as st
 import numpy as np
 import pytest
 from sensor_msgs.msg import PointCloud2, PointField
-
-from absscale_ros import conversions
-from absscale_ros.core import errors
 
 # PointField datatype -> (struct code, numpy dtype), written out independently of the module.
 TYPES = {

@@ -1,12 +1,11 @@
 """nav_msgs/Path <-> poses and diagnostic_msgs helpers (conversions)."""
+from absscale_ros import conversions
+from absscale_ros.core import errors
 from conversions_helpers import READERS, via_cdr
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 import numpy as np
 import pytest
-
-from absscale_ros import conversions
-from absscale_ros.core import errors
 
 
 def random_poses(count: int, seed: int = 5) -> np.ndarray:
@@ -73,9 +72,9 @@ def test_poses_to_path_rejects_bad_input() -> None:
 # ------------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize('level,expected', [
-    ('ok', DiagnosticStatus.OK), ('warn', DiagnosticStatus.WARN), ('ERROR', DiagnosticStatus.ERROR),
-    ('stale', DiagnosticStatus.STALE), (DiagnosticStatus.WARN, DiagnosticStatus.WARN),
-    (2, DiagnosticStatus.ERROR)])
+    ('ok', DiagnosticStatus.OK), ('warn', DiagnosticStatus.WARN),
+    ('ERROR', DiagnosticStatus.ERROR), ('stale', DiagnosticStatus.STALE),
+    (DiagnosticStatus.WARN, DiagnosticStatus.WARN), (2, DiagnosticStatus.ERROR)])
 def test_diagnostic_levels(level: object, expected: bytes) -> None:
     assert conversions.diagnostic_status('n', level, 'm').level == expected
 

@@ -10,11 +10,10 @@ import statistics
 import time
 from typing import Any, Callable
 
+from absscale_ros import conversions
 import numpy as np
 from rclpy.serialization import serialize_message
 from rosbags.typesys import get_typestore, Stores
-
-from absscale_ros import conversions
 
 
 def median_ms(func: Callable[[], Any], repeats: int) -> float:
