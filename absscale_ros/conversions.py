@@ -6,12 +6,13 @@ and on messages deserialized by rosbags (``data`` is a numpy array), since both 
 field names. Expected failures (malformed or unsupported messages) raise
 :class:`absscale_ros.core.errors.MessageError` with the numbers involved.
 
-Speed notes (1280x720 bgr8, see ``test/bench/bench_conversions.py``): readers return numpy
-views on ``msg.data`` (``np.frombuffer``, no copy), so a returned array shares memory with the
-message. Writers fill ``data`` with an ``array.array('B')`` built by ``frombytes`` from the
-array's buffer: one copy, and the generated setter then stores it as is, even with
-``ROS_PYTHON_CHECK_FIELDS=1`` (assigning ``bytes`` is as fast by default but checks every
-byte when field checks are on; a list or an ndarray is about 100x slower).
+Speed notes (1280x720 bgr8, see ``test/bench/bench_conversions.py``): readers wrap
+``msg.data``'s buffer in a strided ``np.ndarray`` (no copy), so a returned array shares memory
+with the message (and is read-only for rosbags messages). Writers fill ``data`` with an
+``array.array('B')`` built by ``frombytes`` from the array's buffer: one copy (0.2-0.3 ms),
+which the generated setter stores as is. Assigning ``array.tobytes()`` costs two copies
+(1.7 ms) and, with ``ROS_PYTHON_CHECK_FIELDS=1``, a per-byte check (270 ms); a memoryview or
+an ndarray goes through ``array.array('B', iterable)`` (130 ms or more).
 """
 import array
 from collections.abc import Mapping, Sequence
@@ -136,7 +137,9 @@ def array_to_image_msg(image: npt.ArrayLike, encoding: str, stamp_ns: int = 0,
                              f'{image.dtype} {image.shape}')
         image = cv2.cvtColor(np.ascontiguousarray(image), _BGR_TO_YUV[encoding])
     expected = image.shape[:2] + ((channels,) if channels > 1 else ())
-    if image.ndim not in (2, 3) or image.shape != expected or image.dtype != dtype:
+    # Any byte order is accepted: astype below writes little-endian.
+    if (image.ndim not in (2, 3) or image.shape != expected
+            or image.dtype.newbyteorder('=') != dtype):
         raise ValueError(f'{encoding} needs an array of {dtype} shaped HxW'
                          f'{"x%d" % channels if channels > 1 else ""}, got {image.dtype} '
                          f'{image.shape}')
@@ -184,6 +187,9 @@ def image_msg_to_array(msg: Any) -> np.ndarray:
     """
     Return an Image's pixels in their native layout, sharing memory with ``msg.data``.
 
+    The view is writable for rclpy messages (writes change the message) and read-only for
+    rosbags messages.
+
     Layout: HxW for one-channel encodings (mono8, mono16, 16UC1, 32FC1 and bayer raw), HxWxC in
     the encoding's channel order otherwise; YUV 4:2:2 ('uyvy'/'yuv422', 'yuyv'/'yuv422_yuy2')
     stays packed as HxWx2 uint8 (use :func:`image_msg_to_bgr` to decode it). Row padding is
@@ -201,7 +207,8 @@ def image_msg_to_bgr(msg: Any) -> npt.NDArray[np.uint8]:
     """
     Return an Image as a C-contiguous HxWx3 uint8 BGR array.
 
-    bgr8 without row padding is returned without copying (it shares memory with ``msg.data``).
+    bgr8 without row padding is returned without copying: it shares memory with ``msg.data``
+    and is read-only for rosbags messages (copy it before drawing on it).
     16-bit images are scaled to 8 bits over their full range (x 255 / 65535, as cv_bridge
     does); YUV 4:2:2 is decoded with OpenCV's BT.601 tables and bayer raw is demosaiced with
     OpenCV's bilinear method.
@@ -335,7 +342,7 @@ def _checked_dist(model: str, dist: npt.NDArray[np.float64]) -> tuple[str, np.nd
     """Return the CameraModel distortion model and coefficients for a CameraInfo's D."""
     if dist.size == 0:
         return 'none', dist
-    if model == '':
+    if model in ('', 'none'):
         if np.any(dist != 0.0):
             raise errors.MessageError(f'CameraInfo has {dist.size} non-zero D coefficients '
                                       'but no distortion_model')
@@ -373,8 +380,8 @@ def camera_info_to_model(msg: Any) -> CameraModel:
     """
     Return the camera model of a ``sensor_msgs/CameraInfo``.
 
-    Supports 'plumb_bob', 'rational_polynomial' and 'equidistant'; an empty D (or an empty
-    model with all-zero D) gives 'none'. ROI and binning, when set, are applied to the size and
+    Supports 'plumb_bob', 'rational_polynomial' and 'equidistant'; an empty D (or an empty or
+    'none' model with all-zero D) gives 'none'. ROI and binning, when set, are applied to the size and
     K, as image_geometry does. R and P are ignored: frames are used unrectified.
 
     :raises errors.MessageError: if the size is zero, K is all zeros (uncalibrated camera) or
@@ -395,7 +402,10 @@ def camera_info_to_model(msg: Any) -> CameraModel:
                                   'lengths must be positive')
     model, dist = _checked_dist(str(msg.distortion_model), dist)
     width, height, K = _apply_roi_binning(msg, width, height, K)
-    return CameraModel(width=width, height=height, K=K, dist=dist, distortion_model=model)
+    try:
+        return CameraModel(width=width, height=height, K=K, dist=dist, distortion_model=model)
+    except ValueError as err:  # e.g. a ROI narrower than the binning
+        raise errors.MessageError(f'CameraInfo gives an invalid camera: {err}') from None
 
 
 def camera_model_to_info_msg(model: CameraModel, stamp_ns: int = 0,

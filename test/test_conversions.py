@@ -88,6 +88,8 @@ def test_mono16_is_written_little_endian() -> None:
     msg = conversions.array_to_image_msg(np.array([[0x0102, 0xA0B0]], np.uint16), 'mono16')
     assert bytes(msg.data) == b'\x02\x01\xb0\xa0'
     assert msg.step == 4
+    swapped = conversions.array_to_image_msg(np.array([[0x0102, 0xA0B0]], '>u2'), 'mono16')
+    assert bytes(swapped.data) == b'\x02\x01\xb0\xa0' and swapped.is_bigendian == 0
 
 
 @pytest.mark.parametrize('reader', READERS)
@@ -287,6 +289,10 @@ def test_png_round_trip_is_lossless_and_keeps_depth(reader: str) -> None:
     decoded = conversions.compressed_msg_to_array(msg16)
     assert decoded.dtype == np.uint16
     np.testing.assert_array_equal(decoded, mono16)
+    # compressed_msg_to_bgr always gives 8-bit BGR, even for a 16-bit grey PNG.
+    bgr16 = conversions.compressed_msg_to_bgr(msg16)
+    assert bgr16.dtype == np.uint8 and bgr16.shape == (3, 4, 3)
+    np.testing.assert_array_equal(bgr16[..., 0], mono16 >> 8)
     mono8 = image[..., 1]
     decoded8 = conversions.compressed_msg_to_array(conversions.bgr_to_compressed_msg(mono8, 'png'))
     np.testing.assert_array_equal(decoded8, mono8)

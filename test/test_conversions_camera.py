@@ -57,7 +57,8 @@ def test_model_without_distortion_goes_out_as_zero_plumb_bob(reader: str) -> Non
 @pytest.mark.parametrize('reader', READERS)
 def test_empty_d_or_empty_model_means_no_distortion(reader: str) -> None:
     for fields in ({'d': []}, {'distortion_model': '', 'd': []},
-                   {'distortion_model': '', 'd': [0.0] * 5}):
+                   {'distortion_model': '', 'd': [0.0] * 5},
+                   {'distortion_model': 'none', 'd': [0.0] * 5}):
         model = conversions.camera_info_to_model(READERS[reader](info(**fields)))
         assert model.distortion_model == 'none', fields
         assert model.dist.size == 0
@@ -106,6 +107,7 @@ def test_resized_model_round_trip_scales_projections_with_the_image(width: int,
     ({'distortion_model': 'equidistant', 'd': [0.1] * 5}, 'needs 4 D coefficients, got 5'),
     ({'distortion_model': 'fancy_lens', 'd': [0.1]}, "'fancy_lens'"),
     ({'distortion_model': '', 'd': [0.1, 0, 0, 0, 0]}, 'no distortion_model'),
+    ({'binning_x': 1000}, 'invalid camera'),
 ])
 def test_malformed_camera_info_is_rejected(fields: dict, match: str, reader: str) -> None:
     with pytest.raises(errors.MessageError, match=match):
