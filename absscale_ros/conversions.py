@@ -381,8 +381,8 @@ def camera_info_to_model(msg: Any) -> CameraModel:
     Return the camera model of a ``sensor_msgs/CameraInfo``.
 
     Supports 'plumb_bob', 'rational_polynomial' and 'equidistant'; an empty D (or an empty or
-    'none' model with all-zero D) gives 'none'. ROI and binning, when set, are applied to the size and
-    K, as image_geometry does. R and P are ignored: frames are used unrectified.
+    'none' model with all-zero D) gives 'none'. ROI and binning, when set, are applied to the
+    size and K, as image_geometry does. R and P are ignored: frames are used unrectified.
 
     :raises errors.MessageError: if the size is zero, K is all zeros (uncalibrated camera) or
         has a non-positive focal length, K or D hold NaN or inf, or D does not fit the model.
