@@ -197,8 +197,8 @@ def test_bayer_is_demosaiced_with_the_right_pattern(pattern: str) -> None:
     np.testing.assert_array_equal(out[2:-2, 2:-2], bgr[2:-2, 2:-2])
 
 
-@pytest.mark.parametrize('encoding,luma_byte', [('uyvy', 1), ('yuv422', 1), ('yuyv', 0),
-                                                 ('yuv422_yuy2', 0)])
+@pytest.mark.parametrize('encoding,luma_byte',
+                         [('uyvy', 1), ('yuv422', 1), ('yuyv', 0), ('yuv422_yuy2', 0)])
 def test_yuv422_byte_order_and_decode(encoding: str, luma_byte: int) -> None:
     # A grey ramp: luma changes along the row while chroma stays neutral (128).
     grey = np.repeat(np.repeat(np.arange(40, 200, 10, dtype=np.uint8)[None, :], 4, 0)[..., None],
