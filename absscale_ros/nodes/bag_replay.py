@@ -10,7 +10,7 @@ from typing import Any
 
 from absscale_ros import bagio, conversions
 from absscale_ros.core import replay
-from absscale_ros.core.errors import AbsScaleError
+from absscale_ros.core.errors import AbsScaleError, BagError
 from absscale_ros.nodes import common
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -28,7 +28,7 @@ class BagReplayNode(Node):
             ('bag', ''), ('mode', 'rate'), ('rate', 1.0), ('topics', ''), ('remap', ''),
             ('start_offset_s', 0.0), ('loop', False), ('step_topics', ''),
             ('step_timeout_s', 10.0), ('expect_nodes', ''), ('qos', 'reliable'),
-            ('progress_period_s', 5.0)])
+            ('progress_period_s', 5.0), ('startup_timeout_s', 5.0)])
         self._p = {x.name: x.value for x in p}
         if self._p['mode'] not in ('rate', 'fast', 'step'):
             raise ValueError(f"mode must be rate, fast or step, not {self._p['mode']!r}")
@@ -37,8 +37,7 @@ class BagReplayNode(Node):
         self._infos = {t: i for t, i in self._bag.topics.items() if t in wanted}
         remap = dict(r.split(':=') for r in _csv(self._p['remap']))
         qos = common.SENSOR if self._p['qos'] == 'sensor_data' else common.RELIABLE
-        self._pubs = {t: self.create_publisher(common.message_class(i.msgtype),
-                                               remap.get(t, t), qos)
+        self._pubs = {t: self.create_publisher(self._class(t, i.msgtype), remap.get(t, t), qos)
                       for t, i in self._infos.items()}
         self._stepped = set(_csv(self._p['step_topics'])) or {
             t for t, i in self._infos.items() if i.msgtype in IMAGE_TYPES}
@@ -48,9 +47,20 @@ class BagReplayNode(Node):
         self.published = self.steps = self.timeouts = 0
         self.finished = False
         self._cursor: bagio.ReplayCursor | None = None
-        self._step_started = self._last_progress = time.monotonic()
+        self._step_started = self._last_progress = self._created = time.monotonic()
         self._create_ack_sub()
         self._timer = self.create_timer(0.001, self._tick)
+
+    def _class(self, topic: str, msgtype: str) -> Any:
+        try:
+            return common.message_class(msgtype)
+        except BagError as err:
+            raise BagError(f'{self._p["bag"]}: topic {topic}: {err}; leave it out with the '
+                           'topics parameter') from err
+
+    def topic_types(self) -> dict[str, str]:
+        """Published topic (after remapping) -> message type."""
+        return {self._pubs[t].topic_name: i.msgtype for t, i in self._infos.items()}
 
     def _create_ack_sub(self) -> None:
         self.create_subscription(Header, common.ACK_TOPIC, self._on_ack, common.RELIABLE)
@@ -63,9 +73,17 @@ class BagReplayNode(Node):
         return self._consumers[topic]
 
     def _ready(self) -> bool:
-        """Step mode starts once every expected node can acknowledge."""
+        """Replay starts once the expected nodes can acknowledge and every topic is heard."""
         ackers = {i.node_name for i in self.get_publishers_info_by_topic(common.ACK_TOPIC)}
-        return set(_csv(self._p['expect_nodes'])) <= ackers
+        missing = set(_csv(self._p['expect_nodes'])) - ackers
+        unheard = [t for t, pub in self._pubs.items() if pub.get_subscription_count() == 0]
+        if not missing and not unheard:
+            return True
+        if time.monotonic() - self._created < self._p['startup_timeout_s']:
+            return False
+        self.get_logger().warning(f'starting without nodes {sorted(missing)} and with no '
+                                  f'subscriber on {unheard}')
+        return True
 
     def _start(self) -> None:
         start = self._bag.start_ns + int(self._p['start_offset_s'] * 1e9)
@@ -76,7 +94,7 @@ class BagReplayNode(Node):
         if self.finished:
             return
         if self._cursor is None:
-            if self._p['mode'] == 'step' and not self._ready():
+            if not self._ready():
                 return
             self._start()
         if self._p['mode'] == 'step':

@@ -15,8 +15,8 @@ from rclpy.serialization import deserialize_message
 
 class StepSinkNode(Node):
 
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__('step_sink', **kwargs)
+    def __init__(self, name: str = 'step_sink', **kwargs: Any) -> None:
+        super().__init__(name, **kwargs)
         p = self.declare_parameters('', [('topic', '/camera/image_raw/compressed'),
                                          ('msgtype', 'sensor_msgs/msg/CompressedImage'),
                                          ('keep_bytes', False)])

@@ -1,0 +1,65 @@
+"""
+ROS parameter YAML files and config lookup (no rclpy).
+
+A config file has one ``<node_name>: ros__parameters:`` section per node, as ``ros2 launch``
+and ``--params-file`` expect; ``/**`` sections apply to every node.
+"""
+from pathlib import Path
+import sys
+from typing import Any
+
+from absscale_ros.core.errors import AbsScaleError
+import yaml
+
+CONFIG_NAMES = ('indoor_paper', 'outdoor_cube', 'auto')
+
+
+def config_dirs() -> list[Path]:
+    """Where named configs live: the source tree, then the installed share folder."""
+    dirs = [Path(__file__).resolve().parent.parent / 'config',
+            Path(sys.prefix) / 'share' / 'absscale_ros' / 'config']
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        dirs.append(Path(get_package_share_directory('absscale_ros')) / 'config')
+    except Exception:  # no ament index: a pip install without ROS
+        pass
+    return dirs
+
+
+def find_config(name_or_path: str) -> Path:
+    """Return the YAML file for a config name (``indoor_paper``...) or an explicit path."""
+    path = Path(name_or_path)
+    if path.suffix in ('.yaml', '.yml') or path.exists():
+        if not path.is_file():
+            raise AbsScaleError(f'{path}: config file not found')
+        return path
+    for folder in config_dirs():
+        candidate = folder / f'{name_or_path}.yaml'
+        if candidate.is_file():
+            return candidate
+    raise AbsScaleError(f'unknown config {name_or_path!r}: use one of '
+                        f'{", ".join(CONFIG_NAMES)} or a path to a YAML file')
+
+
+def load_yaml(path: Path) -> dict[str, dict[str, Any]]:
+    """Return node name -> parameters; ``/**`` parameters merged under each node's own."""
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as err:
+        raise AbsScaleError(f'{path}: not valid YAML: {err}') from err
+    if not isinstance(data, dict):
+        raise AbsScaleError(f'{path}: expected a mapping of node names')
+    sections: dict[str, dict[str, Any]] = {}
+    for node, body in data.items():
+        params = (body or {}).get('ros__parameters') if isinstance(body, dict) else None
+        if not isinstance(params, dict):
+            raise AbsScaleError(f'{path}: section {node!r} has no ros__parameters mapping')
+        sections[str(node).lstrip('/')] = params
+    return sections
+
+
+def node_params(sections: dict[str, dict[str, Any]], node: str) -> dict[str, Any]:
+    """Parameters for ``node``: the ``/**`` defaults overridden by its own section."""
+    merged = dict(sections.get('**', {}))
+    merged.update(sections.get(node, {}))
+    return merged

@@ -1,0 +1,43 @@
+"""
+Start the absscale_ros graph on a machine with a full ROS 2 Jazzy install.
+
+  ros2 launch absscale_ros absscale.launch.py config:=indoor_paper \
+      image:=/camera/image_raw/compressed camera_info:=/camera/camera_info
+
+Then feed it a camera driver, `ros2 bag play BAG`, or `video_source`.
+"""
+import os
+
+from ament_index_python.packages import get_package_share_directory
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
+
+# Pipeline order; a node whose executable is not installed yet is skipped.
+NODES = ['frame_ingest', 'vertex_detector', 'keyframe_selector', 'sfm', 'scale']
+
+
+def _nodes(context, *args, **kwargs):
+    share = get_package_share_directory('absscale_ros')
+    config = LaunchConfiguration('config').perform(context)
+    params = config if config.endswith('.yaml') else os.path.join(share, 'config',
+                                                                  config + '.yaml')
+    lib = os.path.join(os.path.dirname(os.path.dirname(share)), 'lib', 'absscale_ros')
+    remaps = [('/camera/image_raw/compressed', LaunchConfiguration('image').perform(context)),
+              ('/camera/camera_info', LaunchConfiguration('camera_info').perform(context))]
+    return [Node(package='absscale_ros', executable=name, name=name, output='screen',
+                 parameters=[params], remappings=remaps)
+            for name in NODES if os.path.exists(os.path.join(lib, name))]
+
+
+def generate_launch_description():
+    return LaunchDescription([
+        DeclareLaunchArgument('config', default_value='indoor_paper',
+                              description='indoor_paper, outdoor_cube, auto or a YAML path'),
+        DeclareLaunchArgument('image', default_value='/camera/image_raw/compressed',
+                              description='camera image topic (Image or CompressedImage)'),
+        DeclareLaunchArgument('camera_info', default_value='/camera/camera_info',
+                              description='camera_info topic'),
+        OpaqueFunction(function=_nodes),
+    ])
