@@ -7,6 +7,7 @@ the graph has drained the last frame.
 """
 from dataclasses import dataclass, field
 import importlib
+import os
 import time
 from typing import Any, Callable
 
@@ -54,18 +55,21 @@ def _overrides(values: dict[str, Any]) -> list[Parameter]:
 
 def run_graph(bag: str, config: str, replay_overrides: dict[str, Any] | None = None,
               on_progress: Callable[[Progress], None] | None = None,
-              drain_s: float = 0.3) -> dict[str, Any]:
+              drain_s: float = 0.3, domain_id: int | None = None) -> dict[str, Any]:
     """
     Replay ``bag`` through every available node; return the report (a JSON-able dict).
 
     :param config: config name or YAML path (see ``params.find_config``).
     :param replay_overrides: bag_replay parameters that win over the config (mode, rate...).
+    :param domain_id: DDS domain; None picks one from the process id, so offline runs on one
+        machine never hear each other.
     :raises AbsScaleError: bad bag or config (before any node runs).
     """
     config_path = params.find_config(config)
     sections = params.load_yaml(config_path)
     context = rclpy.Context()
-    rclpy.init(context=context, args=[])
+    rclpy.init(context=context, args=[],
+               domain_id=1 + os.getpid() % 100 if domain_id is None else domain_id)
     nodes: dict[str, Node] = {}
     try:
         for name, cls in available_nodes():

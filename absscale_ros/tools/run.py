@@ -15,6 +15,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--mode', choices=('step', 'rate', 'fast'), default='step',
                         help='step: lossless and deterministic (default); rate: bag timing')
     parser.add_argument('--rate', type=float, default=1.0, help='speed factor in rate mode')
+    parser.add_argument('--domain-id', type=int, default=None,
+                        help='DDS domain to run on (default: a private one per run; give '
+                             'your ROS_DOMAIN_ID to watch the run in RViz or Foxglove)')
     parser.add_argument('--quiet', action='store_true', help='no progress bar')
 
 
@@ -37,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
         lambda p: print(_progress_line(p), end='', file=sys.stderr, flush=True))
     report = graph.run_graph(args.bag, args.config,
                              replay_overrides={'mode': args.mode, 'rate': args.rate},
-                             on_progress=show)
+                             on_progress=show, domain_id=args.domain_id)
     if show is not None:
         print(file=sys.stderr)
     (out / 'report.json').write_text(json.dumps(report, indent=2, default=str) + '\n')
