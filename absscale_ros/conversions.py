@@ -115,12 +115,12 @@ def _encoding_info(encoding: str) -> tuple[np.dtype, int]:
         ) from None
 
 
-def array_to_image_msg(image: npt.ArrayLike, encoding: str, stamp_ns: int = 0,
+def array_to_image_msg(array: npt.ArrayLike, encoding: str, stamp_ns: int = 0,
                        frame_id: str = '') -> Image:
     """
-    Return ``image`` as a ``sensor_msgs/Image`` (little-endian, unpadded rows).
+    Return ``array`` as a ``sensor_msgs/Image`` (little-endian, unpadded rows).
 
-    :param image: HxW (mono, bayer raw, 16UC1, 32FC1) or HxWxC in the channel order of
+    :param array: HxW (mono, bayer raw, 16UC1, 32FC1) or HxWxC in the channel order of
         ``encoding``. For the YUV 4:2:2 encodings ('uyvy'/'yuv422', 'yuyv'/'yuv422_yuy2') either
         the packed HxWx2 uint8 bytes as they go on the wire, or an HxWx3 uint8 BGR image that is
         encoded with OpenCV (BT.601; W must be even).
@@ -130,7 +130,7 @@ def array_to_image_msg(image: npt.ArrayLike, encoding: str, stamp_ns: int = 0,
     :raises ValueError: if the array's shape or dtype does not fit the encoding.
     """
     dtype, channels = _encoding_info(encoding)
-    image = np.asarray(image)
+    image = np.asarray(array)
     if channels == 2 and image.ndim == 3 and image.shape[2] == 3:
         if image.dtype != np.uint8 or image.shape[1] % 2:
             raise ValueError(f'BGR to {encoding} needs uint8 and an even width, got '
@@ -530,7 +530,7 @@ def _fields_from_dtype(dtype: np.dtype) -> list[PointField]:
     return fields
 
 
-def array_to_cloud_msg(points: np.ndarray, stamp_ns: int = 0,
+def array_to_cloud_msg(array: np.ndarray, stamp_ns: int = 0,
                        frame_id: str = 'map') -> PointCloud2:
     """
     Return a structured array as an unorganised PointCloud2 (height 1, little-endian).
@@ -538,11 +538,11 @@ def array_to_cloud_msg(points: np.ndarray, stamp_ns: int = 0,
     Field offsets and point_step come from the dtype, so padding in it is kept. ``is_dense`` is
     True when every x, y and z present is finite.
 
-    :param points: structured array of any shape (flattened row-major) whose fields are
+    :param array: structured array of any shape (flattened row-major) whose fields are
         INT8..FLOAT64 scalars or fixed-size subarrays (sent with count > 1).
-    :raises ValueError: if ``points`` is not structured or a field type has no PointField code.
+    :raises ValueError: if ``array`` is not structured or a field type has no PointField code.
     """
-    points = np.asarray(points)
+    points = np.asarray(array)
     if points.dtype.names is None:
         raise ValueError(f'array_to_cloud_msg needs a structured array, got {points.dtype}')
     fields = _fields_from_dtype(points.dtype)
