@@ -84,7 +84,7 @@ def hough_line(points_px: Array, theta0_rad: float, rho0_px: float, theta_res_de
     return best_t, best_r
 
 
-def fit_line(points_px: Array, weights: Array, outward: Array, iters: int = 5,
+def fit_line(points_px: Array, weights: Array, outward: Array, iters: int = 4,
              scale_px: float = 1.0) -> Array:
     """
     Return the robust total-least-squares line of weighted points (N, 2).
@@ -100,9 +100,12 @@ def fit_line(points_px: Array, weights: Array, outward: Array, iters: int = 5,
             break
         mean = (w[:, None] * points_px).sum(0) / sw
         d = points_px - mean
-        cov = (w[:, None] * d).T @ d
-        _, vecs = np.linalg.eigh(cov)
-        n = vecs[:, 0]  # smallest eigenvalue: the normal
+        cxx, cyy = float(w @ (d[:, 0] ** 2)), float(w @ (d[:, 1] ** 2))
+        cxy = float(w @ (d[:, 0] * d[:, 1]))
+        # Direction of largest spread of the 2x2 scatter matrix in closed form; the normal
+        # is perpendicular to it.
+        phi = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)
+        n = np.array([-np.sin(phi), np.cos(phi)])
         if n @ outward < 0.0:
             n = -n
         line = np.array([n[0], n[1], -float(n @ mean)])
@@ -182,3 +185,31 @@ def quad_corners(lines: list[Array]) -> Array | None:
             return None
         corners.append(p)
     return np.array(corners)
+
+
+def side_projection(image_f32: npt.NDArray[np.float32], line: Array, p0: Array, p1: Array,
+                    offset_px: float = 4.0) -> tuple[npt.NDArray[np.float32], float]:
+    """
+    Return a multi-channel image projected on the colour step across one side, and the step.
+
+    Colours are sampled ``offset_px`` inside and outside the side's middle part; projecting on
+    their difference gives a scalar image where the side is a bright-to-dark step at its true
+    place (mixed pixels on the outline are linear blends of the two colours, so the 50% point
+    of the step is the edge, unlike a thresholded colour mask).
+
+    :param image_f32: (H, W, C) float32 image.
+    :returns: ((H, W) float32 projection, colour step norm).
+    """
+    q0 = p0 - (line[:2] @ p0 + line[2]) * line[:2]  # the side's ends, on the line
+    q1 = p1 - (line[:2] @ p1 + line[2]) * line[:2]
+    ts = np.linspace(0.2, 0.8, 16)
+    centres = q0[None, :] + ts[:, None] * (q1 - q0)[None, :]
+    samples = []
+    for off in (-offset_px, offset_px):
+        xy = (centres + off * line[:2]).astype(np.float32)
+        samples.append(cv2.remap(image_f32, xy[:, 0:1], xy[:, 1:2], cv2.INTER_LINEAR,
+                                 borderMode=cv2.BORDER_REPLICATE).reshape(len(ts), -1))
+    diff = np.median(samples[0], axis=0) - np.median(samples[1], axis=0)
+    step = float(np.linalg.norm(diff))
+    proj = image_f32 @ (diff / max(step, 1e-9)).astype(np.float32)
+    return cv2.GaussianBlur(proj, (0, 0), 1.0), step

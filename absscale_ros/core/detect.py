@@ -1,0 +1,110 @@
+"""
+Target detection front end: which detectors to run, and one result per frame.
+
+``target`` selects a sheet ('letter', 'a4', 'custom'), the cube, or 'auto' (every sheet size
+configured plus the cube), so one frame can report several targets of several kinds.
+"""
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import numpy.typing as npt
+
+from absscale_ros.core import detect_cube, detect_sheet, targets
+
+TARGET_CHOICES = ('letter', 'a4', 'custom', 'cube', 'auto')
+
+
+@dataclass(frozen=True)
+class DetectConfig:
+    """
+    What to look for.
+
+    :param target: one of ``TARGET_CHOICES``.
+    :param auto_sheets: sheet names tried in 'auto' mode (A4 and letter differ by 9% in
+        aspect, so only one is tried by default: a detection is reported under that name).
+    :param sheet: the sheet detector's thresholds (its ``sheet`` field is set from ``target``).
+    :param cube: the cube detector's thresholds.
+    """
+
+    target: str = 'auto'
+    auto_sheets: tuple[str, ...] = ('letter',)
+    sheet: detect_sheet.SheetConfig = field(default_factory=detect_sheet.SheetConfig)
+    cube: detect_cube.CubeConfig = field(default_factory=detect_cube.CubeConfig)
+
+    def __post_init__(self) -> None:
+        if self.target not in TARGET_CHOICES:
+            raise ValueError(f'target must be one of {TARGET_CHOICES}, got {self.target!r}')
+        for name in self.auto_sheets:
+            targets.sheet_model(name)  # raises ValueError on an unknown sheet
+
+    def sheet_configs(self) -> list[detect_sheet.SheetConfig]:
+        """Return the sheet detector configurations this target setting runs."""
+        if self.target == 'cube':
+            return []
+        if self.target == 'auto':
+            return [replace(self.sheet, sheet=name) for name in self.auto_sheets]
+        return [replace(self.sheet, sheet=self.target)]
+
+
+@dataclass(frozen=True, eq=False)
+class FrameDetections:
+    """
+    Every target found in one frame.
+
+    :param detections: found targets, ``object_id`` = index in this tuple.
+    :param looked_for: target kinds searched ('sheet', 'cube').
+    """
+
+    detections: tuple[targets.TargetDetection, ...]
+    looked_for: tuple[str, ...]
+
+    @property
+    def kinds(self) -> tuple[str, ...]:
+        """Target kinds seen in this frame, sorted, without repeats."""
+        return tuple(sorted({d.target_type for d in self.detections}))
+
+
+def detect(image_bgr: npt.NDArray[np.uint8], cfg: DetectConfig,
+           K: npt.NDArray[np.float64] | None = None) -> FrameDetections:
+    """
+    Run the configured detectors on one BGR image.
+
+    :param image_bgr: (H, W, 3) uint8 BGR image (distorted is fine: edges are fitted locally).
+    :param K: (3, 3) intrinsics px, used by the sheet aspect check; None to estimate.
+    """
+    if image_bgr.ndim != 3 or image_bgr.shape[2] != 3 or image_bgr.dtype != np.uint8:
+        raise ValueError(f'need an (H, W, 3) uint8 image, got {image_bgr.shape} {image_bgr.dtype}')
+    found: list[targets.TargetDetection] = []
+    looked: list[str] = []
+    if cfg.target in ('cube', 'auto'):
+        looked.append('cube')
+        found += detect_cube.detect_cubes(image_bgr, cfg.cube)
+    sheet_cfgs = cfg.sheet_configs()
+    if sheet_cfgs:
+        looked.append('sheet')
+    for sheet_cfg in sheet_cfgs:
+        for det in detect_sheet.detect_sheets(image_bgr, sheet_cfg, K):
+            if not any(_same_sheet(det, d) for d in found):
+                found.append(det)
+    found = [replace(d, object_id=i) for i, d in enumerate(found)]
+    return FrameDetections(tuple(found), tuple(looked))
+
+
+def _same_sheet(a: targets.TargetDetection, b: targets.TargetDetection) -> bool:
+    """Return True when two sheet detections outline the same quadrilateral."""
+    if a.target_type != 'sheet' or b.target_type != 'sheet':
+        return False
+    return bool(np.abs(a.vertices_px - b.vertices_px).max() < 4.0)
+
+
+def detection_to_dict(det: targets.TargetDetection) -> dict[str, object]:
+    """Return a JSON-ready dict of one detection (pixel coordinates, ids, edges)."""
+    return {
+        'object_id': det.object_id,
+        'target_type': det.target_type,
+        'name': det.name,
+        'score': round(det.score, 4),
+        'vertices': [{'id': int(i), 'u_px': round(float(u), 3), 'v_px': round(float(v), 3)}
+                     for i, (u, v) in zip(det.vertex_ids, det.vertices_px)],
+        'edges': [[int(a), int(b)] for a, b in det.edges],
+    }

@@ -1,0 +1,197 @@
+"""Detector tests on rendered frames (synthetic, anti-aliased, JPEG) and on real photographs."""
+import csv
+from pathlib import Path
+import sys
+
+import cv2
+import numpy as np
+import pytest
+
+from absscale_ros.core import detect, detect_cube, detect_sheet, lines, targets
+
+sys.path.insert(0, str(Path(__file__).parent))
+import synth_targets as st  # noqa: E402
+
+SMARTDOC = Path(__file__).parents[1] / 'data' / 'smartdoc15'
+
+
+def _rng(seed=0):
+    return np.random.default_rng(seed)
+
+
+def _sheet_errors(det, true_px):
+    """Corner errors px for the best cyclic shift, and the paper's delta / l."""
+    best = min((np.roll(det.vertices_px, k, axis=0) for k in range(4)),
+               key=lambda v: float(np.hypot(*(v - true_px).T).sum()))
+    err = np.hypot(*(best - true_px).T)
+    sides = np.hypot(*(true_px - np.roll(true_px, -1, 0)).T)
+    return err, err / np.maximum(sides, np.roll(sides, 1))
+
+
+# ---- lines ----------------------------------------------------------------------------------
+
+def test_nearest_point_of_three_lines_meeting_at_a_point():
+    p = np.array([10.0, -3.0])
+    ls = []
+    for ang in (0.1, 1.2, 2.5):
+        n = np.array([np.cos(ang), np.sin(ang)])
+        ls.append([n[0], n[1], -n @ p])
+    assert np.allclose(lines.nearest_point(np.array(ls)), p)
+
+
+def test_hough_line_recovers_a_slightly_curved_edge():
+    u = np.linspace(0, 200, 400)
+    pts = np.stack([u, 50 + 0.1 * u + 1e-4 * (u - 100) ** 2], axis=1)  # gentle bow
+    theta, rho = lines.hough_line(pts, np.arctan2(1, -0.1) + 0.05, 50.0)
+    n = np.array([np.cos(theta), np.sin(theta)])
+    assert np.median(np.abs(pts @ n - rho)) < 1.5
+
+
+# ---- sheet ----------------------------------------------------------------------------------
+
+@pytest.mark.parametrize('rvec,blur', [((0.1, 0.0, 0.2), 0), ((0.6, -0.3, -0.4), 0),
+                                       ((-0.5, 0.4, 0.7), 9)])
+def test_sheet_corners_subpixel(rvec, blur):
+    true_px = st.project_sheet(rvec, (0.05, 0.0, 1.0))
+    img = st.render_sheet(_rng(1), true_px, blur_px=blur)
+    dets = detect_sheet.detect_sheets(img, detect_sheet.SheetConfig(sheet='a4'))
+    assert len(dets) == 1
+    err, rel = _sheet_errors(dets[0], true_px)
+    assert np.median(rel) < 0.005 and err.max() < (2.0 if blur else 1.0)
+    assert list(dets[0].vertex_ids) == [0, 1, 2, 3]
+    v = dets[0].vertices_px  # clockwise on screen from the smallest u + v
+    assert np.argmin(v.sum(1)) == 0
+    d1, d2 = v[1] - v[0], v[2] - v[1]
+    assert d1[0] * d2[1] - d1[1] * d2[0] > 0  # y down: positive cross is clockwise
+
+
+def test_sheet_with_distractors_wrong_aspect_and_dark_square():
+    true_px = st.sheet_corners(centre_px=(400, 360), width_px=260)
+
+    def extra(img):
+        st.fill(img, st.sheet_corners((950, 300), 200, aspect=1.0), (235, 238, 240))  # square
+        st.fill(img, st.sheet_corners((1000, 560), 150, aspect=3.0, angle_deg=80),
+                (230, 230, 230))  # long strip
+    img = st.render_sheet(_rng(2), true_px, extra=extra)
+    dets = detect_sheet.detect_sheets(img, detect_sheet.SheetConfig(sheet='a4'))
+    assert len(dets) == 1
+    assert _sheet_errors(dets[0], true_px)[0].max() < 1.0
+
+
+def test_sheet_partly_occluded_still_found():
+    true_px = st.sheet_corners(width_px=320, angle_deg=5)
+
+    def extra(img):  # a pen across one side
+        st.fill(img, [[540, 420], [760, 300], [768, 312], [548, 432]], (30, 30, 30))
+    img = st.render_sheet(_rng(3), true_px, extra=extra)
+    dets = detect_sheet.detect_sheets(img, detect_sheet.SheetConfig(sheet='a4'))
+    assert len(dets) == 1
+    assert np.median(_sheet_errors(dets[0], true_px)[1]) < 0.005
+
+
+def test_sheet_smaller_than_area_threshold_rejected():
+    # 0.005 * 1280 * 720 = 4608 px; a 50 x 71 px sheet is 3550 px.
+    img = st.render_sheet(_rng(4), st.sheet_corners(width_px=50))
+    assert detect_sheet.detect_sheets(img, detect_sheet.SheetConfig(sheet='a4')) == []
+    img = st.render_sheet(_rng(4), st.sheet_corners(width_px=70))  # 70 x 99: kept
+    assert len(detect_sheet.detect_sheets(img, detect_sheet.SheetConfig(sheet='a4'))) == 1
+
+
+def test_rectangle_aspect_under_perspective():
+    K = st.K
+    w, h = 0.21, 0.297
+    obj = np.array([[0, 0, 0], [w, 0, 0], [w, h, 0], [0, h, 0]])
+    rvec = np.array([0.7, -0.3, 0.2])
+    img_pts, _ = cv2.projectPoints(obj, rvec, np.array([-0.1, -0.1, 0.8]), K, None)
+    aspect = detect_sheet.rectangle_aspect(img_pts.reshape(4, 2), K, 0.0, K[:2, 2])
+    assert aspect == pytest.approx(h / w, rel=1e-6)
+    est = detect_sheet.rectangle_aspect(img_pts.reshape(4, 2), None, 1000.0, K[:2, 2])
+    assert est == pytest.approx(h / w, rel=0.02)
+
+
+def test_real_smartdoc_frames():
+    """Real A4 photographs (SmartDoc 2015, CC BY 4.0) with hand-annotated corners."""
+    cfg = detect_sheet.SheetConfig(sheet='a4')
+    rels, found = [], 0
+    with open(SMARTDOC / 'ground_truth.csv') as f:
+        for row in csv.DictReader(f):
+            img = cv2.imread(str(SMARTDOC / 'frames' / row['image_path'].replace('/', '_')))
+            true_px = np.array([[float(row[k + '_x']), float(row[k + '_y'])]
+                                for k in ('tl', 'tr', 'br', 'bl')])
+            dets = detect_sheet.detect_sheets(img, cfg)
+            if dets:
+                found += 1
+                rels += list(min((_sheet_errors(d, true_px)[1] for d in dets),
+                                 key=lambda r: r.mean()))
+    # The two cluttered background05 frames (page on a near-white desk, on top of other
+    # pages) are not found yet: see the issue 4 report.
+    assert found >= 4
+    assert np.median(rels) <= 0.005
+
+
+# ---- cube -----------------------------------------------------------------------------------
+
+def _cube_errors(det, v_px, faces):
+    vis = sorted({i for f in faces for i in f[2]})
+    return np.array([np.hypot(*(v_px[vis] - v).T).min() for v in det.vertices_px])
+
+
+@pytest.mark.parametrize('yaw,pitch,dist,blur', [(35, 25, 5.0, 0), (60, 30, 4.0, 0),
+                                                 (45, 40, 3.0, 0), (35, 25, 5.0, 9)])
+def test_cube_vertices_ids_and_edges(yaw, pitch, dist, blur):
+    R, t = st.cube_pose(yaw, pitch, dist)
+    img, faces, v_px = st.render_cube(_rng(5), R, t, blur_px=blur)
+    dets = detect_cube.detect_cubes(img, detect_cube.CubeConfig())
+    assert len(dets) == 1
+    d = dets[0]
+    err = _cube_errors(d, v_px, faces)
+    assert np.median(err) < (1.0 if blur else 0.5) and err.max() < (2.5 if blur else 1.0)
+    assert len(d.vertices_px) == 7 and len(d.edges) == 9
+    assert sorted(targets.colour_mask(i) for i in d.vertex_ids) == [1, 2, 3, 4, 5, 6, 7]
+    assert len(set(d.vertex_ids.tolist())) == len(d.vertex_ids)
+    assert {c for c, _ in d.polygons} == {'red', 'yellow', 'purple'}
+
+
+def test_cube_with_distractors_and_occlusion():
+    R, t = st.cube_pose(35, 25, 5.0, offset_px=(-250, 0))
+
+    def extra(img):  # a lone red board, a yellow disc, a purple L shape
+        st.fill(img, [[900, 100], [1100, 110], [1090, 260], [905, 250]], (40, 35, 210))
+        cv2.circle(img, (1000 * st.SS, 500 * st.SS), 80 * st.SS, (40, 205, 225), -1)
+        st.fill(img, [[800, 550], [1000, 550], [1000, 580], [800, 580]], (170, 50, 140))
+        st.fill(img, [[800, 550], [830, 550], [830, 700], [800, 700]], (170, 50, 140))
+    img, faces, v_px = st.render_cube(_rng(6), R, t, extra=extra,
+                                      occluder=[[300, 420], [330, 420], [330, 600], [300, 600]])
+    dets = detect_cube.detect_cubes(img, detect_cube.CubeConfig())
+    assert len(dets) == 1
+    assert np.median(_cube_errors(dets[0], v_px, faces)) < 0.5
+
+
+def test_cube_smaller_than_area_threshold_rejected():
+    R, t = st.cube_pose(35, 25, 14.0)  # faces ~ 0.2% of the image
+    img, _, _ = st.render_cube(_rng(7), R, t)
+    assert detect_cube.detect_cubes(img, detect_cube.CubeConfig()) == []
+
+
+def test_no_target_no_vertices():
+    img = st.render_sheet(_rng(8), np.zeros((4, 2)) + 5.0)  # degenerate: nothing drawn
+    assert detect.detect(img, detect.DetectConfig()).detections == ()
+
+
+def test_auto_mode_reports_both_kinds():
+    R, t = st.cube_pose(35, 25, 5.0, offset_px=(-300, 0))
+
+    def sheet(img):
+        st.fill(img, st.sheet_corners((1000, 380), 220, aspect=279.4 / 215.9), (235, 238, 240))
+    img, _, _ = st.render_cube(_rng(9), R, t, extra=sheet)
+    res = detect.detect(img, detect.DetectConfig(target='auto'))
+    assert res.kinds == ('cube', 'sheet')
+    assert [d.object_id for d in res.detections] == [0, 1]
+    assert detect.detection_to_dict(res.detections[1])['target_type'] == 'sheet'
+
+
+def test_bad_config_raises():
+    with pytest.raises(ValueError):
+        detect.DetectConfig(target='banana')
+    with pytest.raises(ValueError):
+        detect_cube.CubeConfig(roundness_min=0.9, roundness_max=0.5)
