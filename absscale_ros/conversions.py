@@ -281,16 +281,39 @@ def bgr_to_compressed_msg(image: npt.ArrayLike, fmt: str = 'jpeg', quality: int 
     return msg
 
 
-def _compressed_buffer(msg: Any) -> npt.NDArray[np.uint8]:
+def compressed_format(msg: Any) -> str:
+    """
+    Return the compression named in a CompressedImage's format string.
+
+    image_transport writes 'jpeg', 'png' or '<enc>; <jpeg|png> compressed <enc>'.
+
+    :returns: 'jpeg' (also for 'jpg'), 'png', '' if the format is empty, 'compresseddepth' for
+        the depth plugin, or else the lower-cased format word (e.g. 'theora').
+    """
     fmt = str(msg.format).lower()
-    # image_transport writes 'jpeg', 'png' or '<enc>; <jpeg|png> compressed <enc>'; the depth
-    # plugin's 'compressedDepth' payload starts with a private header we do not parse.
+    if 'compresseddepth' in fmt:
+        return 'compresseddepth'
     words = fmt.split(';')[-1].split()
     kind = words[0] if words else ''
-    if 'compresseddepth' in fmt or kind not in ('', 'jpeg', 'jpg', 'png'):
+    return 'jpeg' if kind == 'jpg' else kind
+
+
+def compressed_bytes(msg: Any) -> npt.NDArray[np.uint8]:
+    """Return a CompressedImage's payload as a 1-D uint8 view on ``msg.data`` (no copy)."""
+    return np.frombuffer(msg.data, np.uint8)
+
+
+def image_geometry(msg: Any) -> tuple[int, int, str]:
+    """Return an Image's ``(width, height, encoding)`` without touching its pixels."""
+    return int(msg.width), int(msg.height), str(msg.encoding)
+
+
+def _compressed_buffer(msg: Any) -> npt.NDArray[np.uint8]:
+    # The depth plugin's 'compressedDepth' payload starts with a private header we do not parse.
+    if compressed_format(msg) not in ('', 'jpeg', 'png'):
         raise errors.MessageError(f'unsupported CompressedImage format {msg.format!r}; '
                                   "expected 'jpeg' or 'png'")
-    data = np.frombuffer(msg.data, np.uint8)
+    data = compressed_bytes(msg)
     if data.size == 0:
         raise errors.MessageError(f'CompressedImage ({msg.format!r}) has no data')
     return data

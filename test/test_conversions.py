@@ -332,3 +332,22 @@ def test_bad_compression_arguments_are_rejected() -> None:
         conversions.bgr_to_compressed_msg(image, 'webp')
     with pytest.raises(ValueError, match='uint16'):
         conversions.bgr_to_compressed_msg(image[..., 0].astype(np.uint16), 'jpeg')
+
+
+@pytest.mark.parametrize('fmt,kind', [('jpeg', 'jpeg'), ('JPG', 'jpeg'), ('png', 'png'), ('', ''),
+                                      ('rgb8; jpeg compressed bgr8', 'jpeg'),
+                                      ('mono16; png compressed mono16', 'png'),
+                                      ('16UC1; compressedDepth png', 'compresseddepth'),
+                                      ('theora', 'theora')])
+def test_compressed_format_names_the_compression(fmt: str, kind: str) -> None:
+    assert conversions.compressed_format(CompressedImage(format=fmt)) == kind
+
+
+@pytest.mark.parametrize('reader', READERS)
+def test_payload_and_geometry_helpers_do_not_decode(reader: str) -> None:
+    jpeg = READERS[reader](conversions.bgr_to_compressed_msg(smooth_bgr(8, 8)))
+    payload = conversions.compressed_bytes(jpeg)
+    assert payload.dtype == np.uint8 and bytes(payload[:2]) == b'\xff\xd8'
+    assert np.shares_memory(payload, np.frombuffer(jpeg.data, np.uint8))
+    image = READERS[reader](conversions.array_to_image_msg(np.zeros((3, 5), np.uint16), 'mono16'))
+    assert conversions.image_geometry(image) == (5, 3, 'mono16')
