@@ -106,14 +106,18 @@ def _face_quads(mask: npt.NDArray[np.uint8], cfg: CubeConfig
     """Return (rough quad, contour) of mask components that pass the paper's tests."""
     kernel = np.ones((3, 3), np.uint8)
     mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, kernel, iterations=cfg.opening_iterations)
-    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     min_area = cfg.min_area_frac * mask.shape[0] * mask.shape[1]
     out = []
-    for c in contours:
-        area = cv2.contourArea(c)
-        if area < min_area:
+    for k in range(1, n):
+        if stats[k, cv2.CC_STAT_AREA] < min_area:  # the paper's area: a pixel count
             continue
-        roundness = 4.0 * np.pi * area / cv2.arcLength(c, True) ** 2  # eq. 1
+        x, y, w, h = stats[k, :4]
+        comp = (labels[y:y + h, x:x + w] == k).astype(np.uint8)
+        cs, _ = cv2.findContours(comp, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE, offset=(x, y))
+        c = max(cs, key=len)
+        area = cv2.contourArea(c)  # eq. 1 on the outline polygon through boundary pixels
+        roundness = 4.0 * np.pi * area / max(cv2.arcLength(c, True), 1e-9) ** 2
         if not cfg.roundness_min <= roundness <= cfg.roundness_max:
             continue
         if area < cfg.min_solidity * cv2.contourArea(cv2.convexHull(c)):
@@ -172,8 +176,9 @@ def _refine_face(image_bgr: npt.NDArray[np.uint8], colour: str, side_lines: list
         return None
     if not cv2.isContourConvex(corners.astype(np.float32)) or min(supports) < cfg.min_support:
         return None
-    side_px = np.hypot(*(hough_corners - np.roll(hough_corners, -1, 0)).T).min()
-    if np.abs(corners - hough_corners).max() > max(4.0, 0.1 * side_px):
+    # Acute corners are cut by the rough outline, so allow a quarter of the longest side.
+    side_px = np.hypot(*(hough_corners - np.roll(hough_corners, -1, 0)).T).max()
+    if np.abs(corners - hough_corners).max() > max(4.0, 0.25 * side_px):
         return None  # the refinement ran off to another edge
     return Face(colour, corners, np.array(refined), np.array(supports))
 
