@@ -6,6 +6,7 @@ configured plus the cube), so one frame can report several targets of several ki
 """
 from dataclasses import dataclass, field, replace
 
+import cv2
 import numpy as np
 import numpy.typing as npt
 
@@ -108,3 +109,51 @@ def detection_to_dict(det: targets.TargetDetection) -> dict[str, object]:
                      for i, (u, v) in zip(det.vertex_ids, det.vertices_px)],
         'edges': [[int(a), int(b)] for a, b in det.edges],
     }
+
+
+# One row per vertex; the layout of the /absscale/vertices PointCloud2 (see docs/topics.md).
+VERTEX_DTYPE = np.dtype([('u', '<f4'), ('v', '<f4'), ('vertex_id', '<i4'), ('object_id', '<i4'),
+                         ('target_type', '<i4'), ('edge_mask', '<i4'), ('score', '<f4')])
+
+
+def vertices_array(result: FrameDetections) -> npt.NDArray[np.void]:
+    """
+    Return every vertex of a frame as a (N,) ``VERTEX_DTYPE`` structured array (N may be 0).
+
+    ``edge_mask`` bit j is set when the vertex shares an image edge with the j-th vertex of the
+    same object in this array's order; ``target_type`` is ``targets.TARGET_TYPE_CODES``.
+    """
+    rows = []
+    for d in result.detections:
+        n = len(d.vertices_px)
+        masks = np.zeros(n, dtype=np.int64)
+        for a, b in d.edges:
+            masks[a] |= 1 << int(b)
+            masks[b] |= 1 << int(a)
+        block = np.zeros(n, dtype=VERTEX_DTYPE)
+        block['u'], block['v'] = d.vertices_px[:, 0], d.vertices_px[:, 1]
+        block['vertex_id'], block['object_id'] = d.vertex_ids, d.object_id
+        block['target_type'] = targets.TARGET_TYPE_CODES[d.target_type]
+        block['edge_mask'], block['score'] = masks, d.score
+        rows.append(block)
+    return np.concatenate(rows) if rows else np.zeros(0, dtype=VERTEX_DTYPE)
+
+
+_OVERLAY_BGR = {'sheet': (255, 255, 0), 'red': (0, 0, 255), 'yellow': (0, 255, 255),
+                'purple': (255, 0, 200)}
+
+
+def draw_overlay(image_bgr: npt.NDArray[np.uint8], result: FrameDetections
+                 ) -> npt.NDArray[np.uint8]:
+    """Return a copy of the image with outlines, vertices and their ids drawn."""
+    out = image_bgr.copy()
+    for d in result.detections:
+        for label, poly in d.polygons:
+            pts = np.round(poly * 16).astype(np.int32).reshape(-1, 1, 2)
+            cv2.polylines(out, [pts], True, _OVERLAY_BGR.get(label, (0, 255, 0)), 2,
+                          cv2.LINE_AA, shift=4)
+        for (u, v), vid in zip(d.vertices_px, d.vertex_ids):
+            cv2.circle(out, (int(round(u)), int(round(v))), 4, (0, 255, 0), -1)
+            cv2.putText(out, f'{d.object_id}:{vid}', (int(u) + 5, int(v) - 5),
+                        cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 255, 0), 1, cv2.LINE_AA)
+    return out

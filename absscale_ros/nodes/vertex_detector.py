@@ -1,0 +1,136 @@
+"""
+vertex_detector: calibration-object vertices in every frame (the paper's Step 1).
+
+Subscribes ``/absscale/frames`` (sensor_msgs/Image bgr8) and ``/absscale/camera_info``.
+Publishes, for every frame, ``/absscale/vertices`` (sensor_msgs/PointCloud2, stamped and framed
+like the source frame, height 1, one point per vertex, an empty cloud when nothing is found so
+consumers can tell "looked and saw nothing" from "no data"). Fields, little-endian:
+
+=============== ======= ===============================================================
+``u``, ``v``    float32 vertex position in the frame, px (pixel centres at integers)
+``vertex_id``   int32   sheet: 0..3 clockwise from the corner nearest the top-left;
+                        cube: colour mask (1 red, 2 yellow, 4 purple) + 8 * ordinal
+``object_id``   int32   index of the target in this frame
+``target_type`` int32   0 sheet, 1 cube
+``edge_mask``   int32   bit j: an image edge joins this vertex and the j-th vertex of the
+                        same object (in cloud order)
+``score``       float32 edge support of the object, 0-1
+=============== ======= ===============================================================
+
+``/absscale/debug_image`` (Image bgr8, the overlay) is drawn only while someone subscribes.
+``/diagnostics`` carries frames, detection rate and time per frame once a second. In step mode
+each frame is acknowledged on ``/absscale/ack`` (``common.StepAck``).
+"""
+from dataclasses import fields, replace
+import time
+from typing import Any
+
+from absscale_ros import conversions
+from absscale_ros.core import detect, detect_cube, detect_sheet, errors
+from absscale_ros.nodes import common
+from diagnostic_msgs.msg import DiagnosticArray
+import numpy as np
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+
+
+def _declare(node: Node, prefix: str, cfg: Any) -> Any:
+    """Declare one parameter per config field (``prefix.field``); return the config read."""
+    values = {}
+    for f in fields(cfg):
+        default = getattr(cfg, f.name)
+        param = node.declare_parameter(f'{prefix}.{f.name}',
+                                       list(default) if isinstance(default, tuple) else default)
+        value = param.value
+        values[f.name] = tuple(value) if isinstance(default, tuple) else value
+    return replace(cfg, **values)
+
+
+class VertexDetectorNode(Node):
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__('vertex_detector', **kwargs)
+        target = self.declare_parameter('target', 'auto').value
+        auto_sheets = self.declare_parameter('auto_sheets', ['letter']).value
+        qos = self.declare_parameter('qos', 'reliable').value  # reliable | sensor_data
+        self._cfg = detect.DetectConfig(
+            target=target, auto_sheets=tuple(auto_sheets),
+            sheet=_declare(self, 'sheet', detect_sheet.SheetConfig()),
+            cube=_declare(self, 'cube', detect_cube.CubeConfig()))
+        in_qos = common.SENSOR if qos == 'sensor_data' else common.RELIABLE
+        self._vertices_pub = self.create_publisher(PointCloud2, '/absscale/vertices',
+                                                   common.RELIABLE)
+        self._debug_pub = self.create_publisher(Image, '/absscale/debug_image', 1)
+        self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self._ack = common.StepAck(self)
+        self._K: np.ndarray | None = None
+        self._info_sub = self.create_subscription(CameraInfo, '/absscale/camera_info',
+                                                  self._on_info, in_qos)
+        self._frames_sub = self.create_subscription(Image, '/absscale/frames', self._on_frame,
+                                                    in_qos)
+        self._frames = self._with_target = self._dropped = 0
+        self._times_ms: list[float] = []
+        self._timer = self.create_timer(1.0, self._publish_diagnostics)
+
+    def _on_info(self, msg: CameraInfo) -> None:
+        try:
+            self._K = conversions.camera_info_to_model(msg).K
+        except errors.AbsScaleError as err:
+            self.get_logger().warning(f'bad camera_info: {err}', throttle_duration_sec=5.0)
+
+    def _on_frame(self, msg: Image) -> None:
+        outputs: list[str] = []
+        try:
+            image = conversions.image_msg_to_bgr(msg)
+            t0 = time.perf_counter()
+            result = detect.detect(image, self._cfg, self._K)
+            self._times_ms.append(1e3 * (time.perf_counter() - t0))
+            stamp_ns = conversions.stamp_to_ns(msg.header.stamp)
+            cloud = detect.vertices_array(result)
+            self._vertices_pub.publish(
+                conversions.array_to_cloud_msg(cloud, stamp_ns, msg.header.frame_id))
+            outputs.append(self._vertices_pub.topic_name)
+            self._frames += 1
+            self._with_target += bool(result.detections)
+            if self._debug_pub.get_subscription_count() > 0:
+                self._debug_pub.publish(conversions.array_to_image_msg(
+                    detect.draw_overlay(image, result), 'bgr8', stamp_ns, msg.header.frame_id))
+                outputs.append(self._debug_pub.topic_name)
+        except errors.AbsScaleError as err:
+            self._dropped += 1
+            self.get_logger().warning(f'frame dropped: {err}', throttle_duration_sec=5.0)
+        self._ack.ack(msg.header.stamp, self._frames_sub.topic_name, outputs)
+
+    def report(self) -> dict[str, Any]:
+        """Counts for report.json."""
+        times = np.array(self._times_ms) if self._times_ms else np.array([np.nan])
+        return {'frames': self._frames, 'frames_with_target': self._with_target,
+                'frames_dropped': self._dropped,
+                'detection_rate': self._with_target / self._frames if self._frames else None,
+                'time_ms_median': float(np.median(times)),
+                'time_ms_p95': float(np.percentile(times, 95))}
+
+    def _publish_diagnostics(self) -> None:
+        r = self.report()
+        level, text = 'ok', 'detecting'
+        if self._K is None:
+            level, text = 'warn', 'waiting for camera_info (aspect check estimates focal)'
+        elif self._frames and not self._with_target:
+            level, text = 'warn', 'target not seen'
+        status = conversions.diagnostic_status(f'{self.get_name()}: detection', level, text, r)
+        self._diag_pub.publish(conversions.diagnostic_array(
+            [status], self.get_clock().now().nanoseconds))
+
+
+def main(args: list[str] | None = None) -> None:
+    rclpy.init(args=args)
+    node = VertexDetectorNode()
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()

@@ -1,0 +1,54 @@
+"""vertex_detector: a cloud per frame (empty when nothing is seen), acks, debug image on demand."""
+from pathlib import Path
+import sys
+
+from absscale_ros import conversions
+from absscale_ros.core import detect
+from absscale_ros.nodes.vertex_detector import VertexDetectorNode
+import numpy as np
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from ros_helpers import spin_until
+from sensor_msgs.msg import Image, PointCloud2
+from std_msgs.msg import Header
+
+sys.path.insert(0, str(Path(__file__).parents[1] / 'core'))
+import synth_targets as st  # noqa: E402
+
+
+def test_cloud_per_frame_ack_and_debug(context) -> None:
+    node = VertexDetectorNode(context=context,
+                              parameter_overrides=[Parameter('target', value='cube')])
+    helper = Node('vd_test_helper', context=context)
+    clouds, acks, debug = [], [], []
+    helper.create_subscription(PointCloud2, '/absscale/vertices', clouds.append, 10)
+    helper.create_subscription(Header, '/absscale/ack', acks.append, 10)
+    pub = helper.create_publisher(Image, '/absscale/frames', 10)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    executor.add_node(helper)
+    rng = np.random.default_rng(0)
+    img, _, _ = st.render_cube(rng, *st.cube_pose(35, 25, 5.0))
+    empty = st._finish(st._background(rng), rng)
+    assert spin_until(executor, lambda: pub.get_subscription_count() > 0, 5.0)
+    pub.publish(conversions.array_to_image_msg(img, 'bgr8', 1_000, 'camera'))
+    assert spin_until(executor, lambda: len(clouds) == 1 and len(acks) == 1, 10.0)
+    pts = conversions.cloud_msg_to_array(clouds[0])
+    assert len(pts) == 7 and set(pts['target_type']) == {1}
+    assert sorted(pts['vertex_id'] & 7) == [1, 2, 3, 4, 5, 6, 7]
+    assert acks[0].frame_id == 'vertex_detector|/absscale/frames|/absscale/vertices'
+    helper.create_subscription(Image, '/absscale/debug_image', debug.append, 10)
+    assert spin_until(executor, lambda: node._debug_pub.get_subscription_count() > 0, 5.0)
+    pub.publish(conversions.array_to_image_msg(empty, 'bgr8', 2_000, 'camera'))
+    assert spin_until(executor, lambda: len(clouds) == 2 and len(debug) == 1, 10.0)
+    assert clouds[1].width == 0  # looked and saw nothing
+    assert acks[1].frame_id.endswith('/absscale/vertices,/absscale/debug_image')
+    r = node.report()
+    assert r['frames'] == 2 and r['frames_with_target'] == 1
+    node.destroy_node()
+    helper.destroy_node()
+
+
+def test_vertices_array_layout() -> None:
+    assert detect.vertices_array(detect.FrameDetections((), ('cube',))).shape == (0,)
