@@ -89,6 +89,7 @@ class BagReplayNode(Node):
         start = self._bag.start_ns + int(self._p['start_offset_s'] * 1e9)
         self._cursor = bagio.ReplayCursor(self._bag, self._infos, start, self._p['loop'])
         self._t0 = (start, time.monotonic_ns())
+        self._loops_seen = 0
 
     def _tick(self) -> None:
         if self.finished:
@@ -112,6 +113,9 @@ class BagReplayNode(Node):
             if msg is None:
                 self._take()  # marks the replay finished
                 return
+            if self._cursor.loops != self._loops_seen:  # a new lap restarts the clock
+                self._loops_seen = self._cursor.loops
+                self._t0 = (self._t0[0], time.monotonic_ns())
             due = replay.due_wall_ns(msg.stamp_ns, self._t0[0], self._t0[1], self._p['rate'])
             if self._p['mode'] == 'rate' and due > time.monotonic_ns():
                 return
