@@ -74,17 +74,16 @@ def hough_line(points_px: Array, theta0_rad: float, rho0_px: float, theta_res_de
     rhos = points_px[:, :1] * np.cos(thetas) + points_px[:, 1:2] * np.sin(thetas)
     bins = np.round((rhos - rho0_px) / rho_res_px).astype(np.int64)
     half = int(np.abs(bins).max()) + 2
-    best, best_t, best_r = -1.0, theta0_rad, rho0_px
-    for j in range(len(thetas)):
-        hist = np.bincount(bins[:, j] + half, minlength=2 * half + 1).astype(np.float64)
-        strip = np.convolve(hist, np.ones(3), mode='same')
-        k = int(np.argmax(strip))
-        if strip[k] > best:
-            best, best_t, best_r = float(strip[k]), float(thetas[j]), rho0_px + (k - half) * rho_res_px
-    return best_t, best_r
+    width = 2 * half + 1
+    # One accumulator (theta rows, rho columns) filled in a single bincount.
+    acc = np.bincount((bins + half + width * np.arange(len(thetas))).ravel(),
+                      minlength=width * len(thetas)).reshape(len(thetas), width)
+    strip = acc[:, :-2] + acc[:, 1:-1] + acc[:, 2:]
+    j, k = np.unravel_index(int(np.argmax(strip)), strip.shape)
+    return float(thetas[j]), rho0_px + (k + 1 - half) * rho_res_px
 
 
-def fit_line(points_px: Array, weights: Array, outward: Array, iters: int = 4,
+def fit_line(points_px: Array, weights: Array, outward: Array, iters: int = 3,
              scale_px: float = 1.0) -> Array:
     """
     Return the robust total-least-squares line of weighted points (N, 2).
