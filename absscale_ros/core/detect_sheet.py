@@ -34,9 +34,9 @@ class SheetConfig:
     :param min_solidity: smallest region area over its convex hull area (convexity test).
     :param aspect_tol: largest relative deviation of the recovered long/short side ratio.
     :param min_support: smallest fraction of each side backed by an image edge.
-    :param min_contrast: smallest Lab colour difference between inside and outside (8-bit Lab).
+    :param min_contrast: smallest BGR colour step across every side (0-255).
     :param work_max_side_px: the candidate search runs on an image at most this big.
-    :param canny_low: lower Canny threshold of the colour-edge candidates (Lab, 0-255).
+    :param canny_low: lower Canny threshold of the colour-edge candidates (BGR, 0-255).
     :param canny_high: upper Canny threshold of the colour-edge candidates.
     :param focal_frac: focal length over the larger image side, used for the aspect check
         when no camera model is given and the quadrilateral does not determine it.
@@ -113,15 +113,15 @@ def _masks(work_bgr: npt.NDArray[np.uint8], work_white: npt.NDArray[np.uint8],
     Return binary candidate masks on the work image.
 
     Whiteness above a few thresholds (Otsu and two higher levels) finds a sheet that is
-    clearly brighter than its surface; regions enclosed by colour edges (Canny on Lab) find
+    clearly brighter than its surface; regions enclosed by colour edges (Canny on BGR) find
     one that differs from the surface mostly in tint, where no grey threshold separates them.
     """
     otsu, _ = cv2.threshold(work_white, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
     top = float(np.percentile(work_white, 99.5))
     masks = [(work_white > t).astype(np.uint8)
              for t in (otsu, otsu + (top - otsu) / 3.0, otsu + 2.0 * (top - otsu) / 3.0)]
-    lab = cv2.cvtColor(cv2.GaussianBlur(work_bgr, (3, 3), 0), cv2.COLOR_BGR2Lab)
-    edges = cv2.dilate(cv2.Canny(lab, cfg.canny_low, cfg.canny_high), np.ones((3, 3), np.uint8))
+    blurred = cv2.GaussianBlur(work_bgr, (3, 3), 0)
+    edges = cv2.dilate(cv2.Canny(blurred, cfg.canny_low, cfg.canny_high), np.ones((3, 3), np.uint8))
     free = (edges == 0).astype(np.uint8)
     masks.append(free)  # edge-free regions: a sheet's blank areas
     # Everything the image border cannot reach without crossing an edge: objects on the
@@ -181,64 +181,43 @@ def _order(corners: Array) -> Array:
     return np.roll(corners, -int(np.argmin(corners.sum(axis=1))), axis=0)
 
 
-def refine_quad(image: npt.NDArray[np.float32], quad_px: Array, coarse_band_px: float
-                ) -> tuple[Array, Array] | None:
+def refine_quad(image_bgr: npt.NDArray[np.uint8], quad_px: Array, coarse_band_px: float
+                ) -> tuple[Array, Array, Array] | None:
     """
-    Refine a rough quadrilateral's sides on ``image`` (bright inside) and intersect them.
+    Refine a rough quadrilateral's sides on the colour step across each and intersect them.
 
-    :returns: ((4, 2) corners px, (4,) side supports) or None when the sides do not close.
+    Each side is refined in a strip around it, on the image projected on that side's own
+    inside-minus-outside colour (``lines.side_projection``), so a sheet that is brighter than
+    the desk on one side and only differently tinted on another is handled alike.
+
+    :returns: ((4, 2) corners px, (4,) side supports, (4,) colour steps) or None when the
+        sides do not close.
     """
+    h, w = image_bgr.shape[:2]
     centre = quad_px.mean(axis=0)
-    side_lines, supports = [], []
+    side_lines, supports, steps = [], [], []
     for i in range(4):
-        p0, p1 = quad_px[i], quad_px[(i + 1) % 4]
-        line = lines.line_through(p0, p1, centre)
+        ends = np.array([quad_px[i], quad_px[(i + 1) % 4]])
+        pad = int(coarse_band_px) + 12
+        x0, y0 = np.maximum(np.floor(ends.min(0)).astype(int) - pad, 0)
+        x1, y1 = np.minimum(np.ceil(ends.max(0)).astype(int) + pad, [w - 1, h - 1])
+        origin = np.array([x0, y0], dtype=np.float64)
+        roi = image_bgr[y0:y1 + 1, x0:x1 + 1].astype(np.float32)
+        p0, p1 = ends - origin
+        line = lines.line_through(p0, p1, centre - origin)
+        proj, step = lines.side_projection(roi, line, p0, p1, max(4.0, coarse_band_px))
         n = int(np.clip(np.hypot(*(p1 - p0)) / 4.0, 16, 96))
-        line, sup = lines.refine_side(image, line, p0, p1, (coarse_band_px, 4.0, 3.0), n)
+        line, sup = lines.refine_side(proj, line, p0, p1, (coarse_band_px, 4.0, 3.0), n)
+        line[2] -= line[:2] @ origin
         side_lines.append(line)
         supports.append(sup)
+        steps.append(step)
     corners = lines.quad_corners(side_lines)
     if corners is None or not cv2.isContourConvex(corners.astype(np.float32)):
         return None
     if np.abs(corners - quad_px).max() > 2.0 * coarse_band_px + 4.0:
         return None
-    return corners, np.array(supports)
-
-
-def _inside_outside(shape: tuple[int, int], poly_px: Array, ring_px: int
-                    ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
-    """Return masks of a polygon's interior (shrunk) and of a ring just outside it."""
-    inner = np.zeros(shape, np.uint8)
-    cv2.fillConvexPoly(inner, np.round(poly_px).astype(np.int32), 1)
-    k = np.ones((2 * ring_px + 1, 2 * ring_px + 1), np.uint8)
-    outer = cv2.dilate(inner, k) - cv2.dilate(inner, np.ones((3, 3), np.uint8))
-    return cv2.erode(inner, k) > 0, outer > 0
-
-
-def _projected(image_bgr: npt.NDArray[np.uint8], quad_px: Array, margin_px: int
-               ) -> tuple[npt.NDArray[np.float32], Array, float]:
-    """
-    Return the Lab colour of a region around ``quad_px`` projected on inside minus outside.
-
-    The projection makes the sheet the bright side of a scalar image whatever its tint against
-    the surface (the paper's bright-on-darker case is the grey special case).
-
-    :returns: ((h, w) float32 ROI image, (2,) ROI origin px, contrast in Lab units).
-    """
-    h, w = image_bgr.shape[:2]
-    x0, y0 = np.maximum(np.floor(quad_px.min(0)).astype(int) - margin_px, 0)
-    x1, y1 = np.minimum(np.ceil(quad_px.max(0)).astype(int) + margin_px, [w - 1, h - 1])
-    lab = cv2.cvtColor(image_bgr[y0:y1 + 1, x0:x1 + 1], cv2.COLOR_BGR2Lab).astype(np.float32)
-    origin = np.array([x0, y0], dtype=np.float64)
-    inner, outer = _inside_outside(lab.shape[:2], quad_px - origin, max(4, margin_px // 2))
-    if not inner.any() or not outer.any():
-        return lab[..., 0], origin, 0.0
-    diff = lab[inner].mean(0) - lab[outer].mean(0)
-    contrast = float(np.linalg.norm(diff))
-    proj = lab @ (diff / max(contrast, 1e-9)).astype(np.float32)
-    # Smoothing across the edge does not move a straight step edge but steadies its
-    # derivative peak on JPEG noise and paper texture.
-    return cv2.GaussianBlur(proj, (0, 0), 1.2), origin, contrast
+    return corners, np.array(supports), np.array(steps)
 
 
 def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
@@ -259,13 +238,12 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
     found: list[tuple[float, Array]] = []
     for quad in _candidates(work, whiteness(work), cfg):
         quad_full = (quad + 0.5) / scale - 0.5  # pixel centres at integer coordinates
-        proj, origin, contrast = _projected(image_bgr, quad_full, int(band) + 8)
-        if contrast < cfg.min_contrast:
-            continue
-        refined = refine_quad(proj, quad_full - origin, band)
+        refined = refine_quad(image_bgr, quad_full, band)
         if refined is None or refined[1].min() < cfg.min_support:
             continue
-        corners = refined[0] + origin
+        if refined[2].min() < cfg.min_contrast:
+            continue  # not a sheet on a different surface all round
+        corners = refined[0]
         aspect = rectangle_aspect(corners, K, cfg.focal_frac * max(h, w),
                                   np.array([(w - 1) / 2.0, (h - 1) / 2.0]))
         if abs(aspect / model.aspect - 1.0) > cfg.aspect_tol:
