@@ -137,7 +137,7 @@ def _hough_sides(quad: Array, contour_px: Array, cfg: CubeConfig) -> list[Array]
         line = lines.line_through(p0, p1, centre)
         d = np.abs(contour_px @ line[:2] + line[2])
         t = (contour_px - p0) @ (p1 - p0) / max(float((p1 - p0) @ (p1 - p0)), 1e-9)
-        near = contour_px[(d < 3.0) & (t > 0.1) & (t < 0.9)]
+        near = contour_px[(d < 6.0) & (t > 0.2) & (t < 0.8)]  # clear of cut corners
         if len(near) >= 5:
             theta0 = float(np.arctan2(line[1], line[0]))
             theta, rho = lines.hough_line(near, theta0, -line[2], cfg.hough_theta_deg)

@@ -164,7 +164,7 @@ def refine_side(image: npt.NDArray[np.float32], line: Array, p0: Array, p1: Arra
         pts, strength = edge_points(image, q0, q1, line[:2], band, n_samples)
         if len(pts) < 3:
             return line, 0.0
-        keep = strength >= min_rel_strength * float(np.median(strength))
+        keep = strength >= min_rel_strength * float(np.sort(strength)[len(strength) // 2])
         if keep.sum() < 3:
             return line, 0.0
         line = fit_line(pts[keep], strength[keep], line[:2], scale_px=max(0.5, band / 4.0))
@@ -208,7 +208,8 @@ def side_projection(image_f32: npt.NDArray[np.float32], line: Array, p0: Array, 
         xy = (centres + off * line[:2]).astype(np.float32)
         samples.append(cv2.remap(image_f32, xy[:, 0:1], xy[:, 1:2], cv2.INTER_LINEAR,
                                  borderMode=cv2.BORDER_REPLICATE).reshape(len(ts), -1))
-    diff = np.median(samples[0], axis=0) - np.median(samples[1], axis=0)
+    med = np.sort(np.stack(samples), axis=1)[:, len(ts) // 2]  # per-channel medians
+    diff = med[0] - med[1]
     step = float(np.linalg.norm(diff))
     proj = image_f32 @ (diff / max(step, 1e-9)).astype(np.float32)
     return cv2.GaussianBlur(proj, (0, 0), 1.0), step
