@@ -121,7 +121,8 @@ def _masks(work_bgr: npt.NDArray[np.uint8], work_white: npt.NDArray[np.uint8],
     masks = [(work_white > t).astype(np.uint8)
              for t in (otsu, otsu + (top - otsu) / 3.0, otsu + 2.0 * (top - otsu) / 3.0)]
     blurred = cv2.GaussianBlur(work_bgr, (3, 3), 0)
-    edges = cv2.dilate(cv2.Canny(blurred, cfg.canny_low, cfg.canny_high), np.ones((3, 3), np.uint8))
+    edges = cv2.Canny(blurred, cfg.canny_low, cfg.canny_high)
+    edges = cv2.dilate(edges, np.ones((3, 3), np.uint8))
     free = (edges == 0).astype(np.uint8)
     masks.append(free)  # edge-free regions: a sheet's blank areas
     # Everything the image border cannot reach without crossing an edge: objects on the

@@ -26,7 +26,8 @@ PAPER = {'red': (92.1, 90.8), 'yellow': (96.5, 94.1), 'purple': (91.8, 89.9),
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('bags', nargs='+', metavar='BAG', help='bags with BAG.gt.json beside')
-    parser.add_argument('--target', default='from-gt', choices=('from-gt',) + detect.TARGET_CHOICES,
+    parser.add_argument('--target', default='from-gt',
+                        choices=('from-gt',) + detect.TARGET_CHOICES,
                         help='detector target (default: the bag scene variant target)')
     parser.add_argument('--max-frames', type=int, default=0, help='frames per bag (0 = all)')
     parser.add_argument('--json', action='store_true', help='print the figures as JSON')
@@ -132,8 +133,8 @@ def bench_bag(path: str, target: str, max_frames: int, tally: Tally) -> None:
             if max_frames and k >= max_frames:
                 break
             msg = reader.deserialize(bm)
-            img = (conversions.compressed_msg_to_bgr(msg) if bm.msgtype.endswith('Compressed'
-                                                                                  'Image')
+            compressed = bm.msgtype.endswith('CompressedImage')
+            img = (conversions.compressed_msg_to_bgr(msg) if compressed
                    else conversions.image_msg_to_bgr(msg))
             t0 = time.perf_counter()
             res = detect.detect(img, cfg, K)
@@ -150,7 +151,8 @@ def figures(t: Tally) -> dict[str, Any]:
                     'true_px': true}
     for kind in ('cube', 'sheet'):
         r, p = np.array(t.rel[kind]), np.array(t.px[kind])
-        out[kind + '_corner'] = {'n': len(r), 'median_rel': float(np.median(r)) if len(r) else None,
+        out[kind + '_corner'] = {'n': len(r),
+                                 'median_rel': float(np.median(r)) if len(r) else None,
                                  'mean_rel': float(r.mean()) if len(r) else None,
                                  'median_px': float(np.median(p)) if len(p) else None,
                                  'p95_px': float(np.percentile(p, 95)) if len(p) else None}
