@@ -1,0 +1,252 @@
+"""
+Keyframe selection: which frames of a handheld video are worth reconstructing.
+
+After Rashidi et al. 2013 ("Optimized selection of key frames for monocular videogrammetric
+surveying"): a blurred frame is never chosen (variance of the Laplacian against a running
+median); corners detected in the last keyframe are tracked frame to frame (pyramidal KLT);
+a frame becomes a keyframe when the tracked ratio falls or the baseline grows past thresholds,
+provided two-view geometry shows real translation (GRIC, see ``keyframe_geometry``), so pure rotations
+and tiny baselines never make keyframes. Frames in which the calibration target is seen large
+enough are preferred. Tracking runs on a grey image downscaled to ``track_width_px``.
+"""
+from collections import deque
+from dataclasses import dataclass
+from typing import Callable
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from absscale_ros.core import keyframe_geometry
+from absscale_ros.core.types import CameraModel
+
+FloatArray = npt.NDArray[np.float64]
+Decide = Callable[..., 'Decision']
+
+
+@dataclass(frozen=True)
+class KeyframeConfig:
+    """
+    Thresholds of the keyframe selector (all are ROS parameters of ``keyframe_selector``).
+
+    :param track_width_px: width of the grey image tracked on (height keeps the aspect).
+    :param max_features: corners detected in each keyframe.
+    :param min_feature_distance_px: spacing of those corners, at tracking scale.
+    :param blur_window: frames in the running median of the sharpness score.
+    :param min_sharpness_ratio: a frame whose Laplacian variance is below this fraction of the
+        running median is blurred.
+    :param min_tracked_ratio: a keyframe is due when fewer than this fraction of the last
+        keyframe's corners are still tracked.
+    :param lost_tracks: fewer tracked corners than this means tracking is lost.
+    :param min_flow_px: median corner displacement (tracking scale) before the (costlier)
+        two-view test runs.
+    :param min_baseline_ratio: lower end of the baseline / median depth band of keyframe pairs.
+    :param target_baseline_ratio: estimated baseline / depth at which a keyframe is taken.
+    :param max_baseline_ratio: upper end of the band (reported; a late keyframe is still taken).
+    :param no_target_factor: without the target in view, wait until the baseline ratio reaches
+        ``target_baseline_ratio`` times this (or the tracks run low), to prefer target frames.
+    :param min_target_area: target area / image area for a frame to count as showing it.
+    :param min_parallax_px: median parallax left after removing the best pure rotation
+        (tracking scale) below which the motion counts as degenerate.
+    :param sigma_px: corner position noise at tracking scale, px (GRIC and RANSAC).
+    :param min_inliers: two-view inliers needed to trust the geometry.
+    """
+
+    track_width_px: int = 640
+    max_features: int = 150
+    min_feature_distance_px: float = 12.0
+    blur_window: int = 15
+    min_sharpness_ratio: float = 0.6
+    min_tracked_ratio: float = 0.5
+    lost_tracks: int = 20
+    min_flow_px: float = 6.0
+    min_baseline_ratio: float = 0.03
+    target_baseline_ratio: float = 0.08
+    max_baseline_ratio: float = 0.3
+    no_target_factor: float = 1.5
+    min_target_area: float = 0.005
+    min_parallax_px: float = 3.0
+    sigma_px: float = 1.0
+    min_inliers: int = 15
+
+    def __post_init__(self) -> None:
+        if self.track_width_px < 64 or self.max_features < 8 or self.blur_window < 1:
+            raise ValueError('track_width_px >= 64, max_features >= 8, blur_window >= 1')
+        if not 0.0 <= self.min_sharpness_ratio <= 1.0 or not 0.0 < self.min_tracked_ratio < 1.0:
+            raise ValueError('min_sharpness_ratio in [0, 1], min_tracked_ratio in (0, 1)')
+        if not 0.0 < self.min_baseline_ratio <= self.target_baseline_ratio \
+                <= self.max_baseline_ratio:
+            raise ValueError('need 0 < min_baseline_ratio <= target_baseline_ratio '
+                             '<= max_baseline_ratio')
+        if self.lost_tracks < 5 or self.min_inliers < 5 or self.no_target_factor < 1.0:
+            raise ValueError('lost_tracks >= 5, min_inliers >= 5, no_target_factor >= 1')
+        if self.sigma_px <= 0.0 or min(self.min_flow_px, self.min_parallax_px) < 0.0 or self.min_target_area < 0.0:
+            raise ValueError('sigma_px > 0; min_flow_px, min_parallax_px, min_target_area >= 0')
+
+
+@dataclass(frozen=True)
+class Decision:
+    """
+    What the selector made of one frame.
+
+    :param reason: why it is or is not a keyframe: 'first', 'baseline', 'tracks', 'blurred',
+        'degenerate', 'lost', 'waiting'.
+    :param sharpness_ratio: Laplacian variance / running median (1.0 = typical).
+    :param tracked_ratio: corners still tracked / corners detected in the reference.
+    :param baseline_ratio: estimated baseline / median depth to the last keyframe (NaN if the
+        two-view test did not run or was degenerate).
+    :param after_loss: for a keyframe: tracking to the previous keyframe was lost in between,
+        so the pair shares no tracked corners.
+    """
+
+    stamp_ns: int
+    keyframe: bool
+    reason: str
+    sharpness_ratio: float
+    tracked_ratio: float
+    baseline_ratio: float
+    target_area: float
+    after_loss: bool = False
+
+
+def sharpness(grey: npt.NDArray[np.uint8]) -> float:
+    """Variance of the Laplacian of a grey image (higher is sharper)."""
+    return float(cv2.Laplacian(grey, cv2.CV_32F).var())
+
+
+def target_area_fraction(vertices_px: FloatArray, object_ids: npt.NDArray[np.int64],
+                         width: int, height: int) -> float:
+    """
+    Largest detected target's area as a fraction of the image.
+
+    :param vertices_px: (N, 2) image vertices (u, v), px; :param object_ids: (N,) their object.
+    """
+    best = 0.0
+    for obj in np.unique(object_ids):
+        pts = vertices_px[object_ids == obj].astype(np.float32)
+        if len(pts) >= 3:
+            best = max(best, float(cv2.contourArea(cv2.convexHull(pts))))
+    return best / float(width * height)
+
+
+class KeyframeSelector:
+    """Stateful selector: call ``update`` once per frame, in stamp order."""
+
+    def __init__(self, cfg: KeyframeConfig) -> None:
+        self.cfg = cfg
+        self._scores: deque[float] = deque(maxlen=cfg.blur_window)
+        self._prev: npt.NDArray[np.uint8] | None = None
+        self._pts: npt.NDArray[np.float32] | None = None  # (N, 1, 2) tracked now
+        self._pts0: npt.NDArray[np.float32] | None = None  # the same corners in the reference
+        self._cams: tuple[CameraModel, CameraModel] | None = None
+        self._seeded = 0
+        self._have_keyframe = False
+        self._lost_since_keyframe = False
+        self.lost_count = 0
+
+    def _grey(self, image_bgr: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint8]:
+        h, w = image_bgr.shape[:2]
+        grey = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY) if image_bgr.ndim == 3 else image_bgr
+        if w > self.cfg.track_width_px:
+            size = (self.cfg.track_width_px, max(1, round(h * self.cfg.track_width_px / w)))
+            grey = cv2.resize(grey, size, interpolation=cv2.INTER_AREA)
+        return grey
+
+    def _track_camera(self, camera: CameraModel, grey: npt.NDArray[np.uint8]) -> CameraModel:
+        if self._cams is None or self._cams[0] is not camera:
+            self._cams = (camera, camera.resized(grey.shape[1], grey.shape[0]))
+        return self._cams[1]
+
+    def _sharpness_ratio(self, grey: npt.NDArray[np.uint8]) -> float:
+        score = sharpness(grey)
+        ratio = score / float(np.median(self._scores)) if len(self._scores) >= 3 else 1.0
+        self._scores.append(score)
+        return ratio if np.isfinite(ratio) else 1.0
+
+    def _seed(self, grey: npt.NDArray[np.uint8]) -> None:
+        pts = cv2.goodFeaturesToTrack(grey, self.cfg.max_features, 0.01,
+                                      self.cfg.min_feature_distance_px, blockSize=5)
+        self._pts = pts if pts is not None else np.zeros((0, 1, 2), np.float32)
+        self._pts0 = self._pts.copy()
+        self._seeded = len(self._pts)
+
+    def _track(self, grey: npt.NDArray[np.uint8]) -> None:
+        if self._prev is None or self._pts is None or self._pts0 is None or not len(self._pts):
+            return
+        nxt, status, _ = cv2.calcOpticalFlowPyrLK(self._prev, grey, self._pts, None,
+                                                  winSize=(15, 15), maxLevel=3)
+        h, w = grey.shape
+        ok = status.ravel().astype(bool) & np.all(np.isfinite(nxt.reshape(-1, 2)), axis=1)
+        xy = nxt.reshape(-1, 2)
+        ok &= (xy[:, 0] >= 0) & (xy[:, 0] <= w - 1) & (xy[:, 1] >= 0) & (xy[:, 1] <= h - 1)
+        self._pts, self._pts0 = nxt[ok], self._pts0[ok]
+
+    def _geometry(self, cam: CameraModel) -> keyframe_geometry.Motion:
+        assert self._pts is not None and self._pts0 is not None
+        xy0 = cv2.undistortPoints(self._pts0, cam.K, cam.dist).reshape(-1, 2).astype(np.float64)
+        xy1 = cv2.undistortPoints(self._pts, cam.K, cam.dist).reshape(-1, 2).astype(np.float64)
+        f_px = float(cam.K[0, 0])
+        return keyframe_geometry.analyse(xy0, xy1, self.cfg.sigma_px / f_px,
+                                         self.cfg.min_inliers, self.cfg.min_parallax_px / f_px)
+
+    def update(self, stamp_ns: int, image_bgr: npt.NDArray[np.uint8], camera: CameraModel,
+               target_area: float = 0.0) -> Decision:
+        """
+        Decide whether the frame is a keyframe.
+
+        :param image_bgr: (H, W, 3) uint8 BGR (or (H, W) grey) image of ``camera``.
+        :param camera: intrinsics of this image (distortion allowed).
+        :param target_area: largest calibration target's area / image area (0 if none seen).
+        """
+        grey = self._grey(image_bgr)
+        cam = self._track_camera(camera, grey)
+        sharp = self._sharpness_ratio(grey)
+        self._track(grey)
+        self._prev = grey
+        blurred = sharp < self.cfg.min_sharpness_ratio
+        n = len(self._pts) if self._pts is not None else 0
+        tracked = n / self._seeded if self._seeded else 0.0
+
+        def decide(keyframe: bool, reason: str, ratio: float = float('nan')) -> Decision:
+            after_loss = keyframe and self._lost_since_keyframe
+            if keyframe:
+                self._seed(grey)
+                self._have_keyframe, self._lost_since_keyframe = True, False
+            return Decision(stamp_ns, keyframe, reason, sharp, tracked, ratio, target_area,
+                            after_loss)
+
+        if not self._have_keyframe and not blurred:
+            return decide(True, 'first')
+        if n < self.cfg.lost_tracks:
+            return self._lost(grey, decide, blurred)
+        if blurred:
+            return decide(False, 'blurred')
+        assert self._pts is not None and self._pts0 is not None
+        flow_px = float(np.median(np.linalg.norm((self._pts - self._pts0).reshape(-1, 2), axis=1)))
+        low_tracks = tracked < self.cfg.min_tracked_ratio
+        if flow_px < self.cfg.min_flow_px and not low_tracks:
+            return decide(False, 'waiting')
+        geo = self._geometry(cam)
+        if geo.degenerate:
+            return decide(False, 'degenerate')
+        return self._by_baseline(geo.baseline_ratio, low_tracks, target_area, decide)
+
+    def _lost(self, grey: npt.NDArray[np.uint8], decide: Decide, blurred: bool) -> Decision:
+        """Tracking is lost: restart tracking here, without a keyframe (no baseline to check)."""
+        if self._seeded >= self.cfg.lost_tracks:
+            self.lost_count += 1  # count each loss once, not every frame of it
+        self._lost_since_keyframe = True
+        if not blurred:
+            self._seed(grey)  # a provisional reference: the next keyframe is measured from it
+        return decide(False, 'lost')
+
+    def _by_baseline(self, ratio: float, low_tracks: bool, target_area: float,
+                     decide: Decide) -> Decision:
+        cfg = self.cfg
+        has_target = target_area >= cfg.min_target_area
+        wanted = cfg.target_baseline_ratio * (1.0 if has_target else cfg.no_target_factor)
+        if ratio >= min(wanted, cfg.max_baseline_ratio):
+            return decide(True, 'baseline', ratio)
+        if low_tracks and ratio >= cfg.min_baseline_ratio:
+            return decide(True, 'tracks', ratio)
+        return decide(False, 'waiting', ratio)
