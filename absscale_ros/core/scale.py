@@ -1,0 +1,253 @@
+"""
+Metric scale from reconstructed calibration-object vertices (the paper's eq. 8-10, and better).
+
+Pipeline per object: match the reconstructed vertices to the target model by shape (label
+free, so a cyclic shift of sheet corners or a mislabelled cube vertex cannot bias the scale),
+turn every vertex pair into a (measured, true) length, reject outlying vertices, and fit one
+factor over all objects with its standard error. Below the observability gate no scale is
+claimed (``NotObservableError``).
+"""
+from dataclasses import dataclass, field
+from functools import lru_cache
+from itertools import permutations
+
+import numpy as np
+import numpy.typing as npt
+from scipy import stats
+
+from absscale_ros.core.errors import DegenerateGeometryError, NotObservableError
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class ScaleConfig:
+    """Thresholds of the scale stage (all in the config YAML of the scale node)."""
+
+    min_vertices: int = 3  # per object: fewer leave the model assignment ambiguous
+    min_observations: int = 3  # keyframes that saw a vertex before it counts
+    min_angle_deg: float = 3.0  # widest triangulation angle of a vertex before it counts
+    max_shape_residual: float = 0.02  # RMS relative length misfit of the best assignment
+    ambiguity_ratio: float = 3.0  # second-best assignment must misfit this many times more
+    outlier_sigma: float = 3.5  # reject a vertex whose pairs deviate by this many MADs
+    max_relative_sigma: float = 0.01  # claim a scale only when sigma / factor is below this
+    confidence: float = 0.95  # of the reported interval
+
+    def __post_init__(self) -> None:
+        if self.min_vertices < 2 or self.min_observations < 1:
+            raise ValueError('min_vertices must be >= 2 and min_observations >= 1')
+        if not 0.0 < self.confidence < 1.0 or self.max_relative_sigma <= 0.0:
+            raise ValueError('confidence must be in (0, 1) and max_relative_sigma > 0')
+
+
+@dataclass(frozen=True, eq=False)
+class ScaleEstimate:
+    """
+    Metres per reconstruction unit, with what it rests on.
+
+    :param factor: metres per SfM unit.
+    :param sigma: its standard error (same unit).
+    :param interval: (low, high) confidence interval of ``factor``.
+    :param measured: (E,) reconstructed lengths used, SfM units.
+    :param true_m: (E,) their true lengths, m.
+    :param residuals_m: (E,) ``factor * measured - true_m``, m.
+    :param rejected: human-readable reasons for vertices or objects left out.
+    """
+
+    factor: float
+    sigma: float
+    interval: tuple[float, float]
+    measured: FloatArray
+    true_m: FloatArray
+    residuals_m: FloatArray
+    objects_used: int
+    rejected: list[str] = field(default_factory=list)
+
+
+def model_vertices_m(kind: str, size_m: tuple[float, ...]) -> FloatArray:
+    """(K, 3) model vertices, m: a sheet's 4 corners in order, or a cube's 8 corners."""
+    if kind == 'sheet':
+        w, h = size_m[:2]
+        return np.array([[0.0, 0.0, 0.0], [w, 0.0, 0.0], [w, h, 0.0], [0.0, h, 0.0]])
+    if kind == 'cube':
+        idx = np.arange(8)
+        bits = np.stack([idx & 1, (idx >> 1) & 1, (idx >> 2) & 1], axis=1)
+        return float(size_m[0]) * bits.astype(np.float64)
+    raise ValueError(f'unknown target kind {kind!r}')
+
+
+def _pair_index(n: int) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    i, j = np.triu_indices(n, k=1)
+    return i.astype(np.int64), j.astype(np.int64)
+
+
+@lru_cache(maxsize=16)
+def _assignments(k: int, n: int) -> npt.NDArray[np.int64]:
+    """Every ordered choice of ``n`` of ``k`` model vertices (at most 8!/0! = 40320 rows)."""
+    return np.array(list(permutations(range(k), n)), dtype=np.int64).reshape(-1, n)
+
+
+def assign_to_model(points: FloatArray, model_m: FloatArray,
+                    cfg: ScaleConfig) -> tuple[npt.NDArray[np.int64], float]:
+    """
+    Match reconstructed vertices to model vertices by shape alone.
+
+    Every injective assignment is scored by how well one scale maps the model's pairwise
+    distances onto the reconstructed ones (scale-free RMS relative misfit).
+
+    :param points: (N, 3) reconstructed vertices of one object, SfM units, N >= 3.
+    :param model_m: (K, 3) model vertices, m.
+    :returns: (N,) model vertex index per point, and the misfit of that assignment.
+    :raises DegenerateGeometryError: if the best assignment misfits or is ambiguous.
+    """
+    n = len(points)
+    pi, pj = _pair_index(n)
+    d = np.linalg.norm(points[pi] - points[pj], axis=1)
+    if np.any(d <= 0.0) or not np.all(np.isfinite(d)):
+        raise DegenerateGeometryError('coincident or non-finite vertices')
+    perms = _assignments(len(model_m), n)
+    model_pair_m = np.linalg.norm(model_m[:, None] - model_m[None, :], axis=2)
+    model_d = model_pair_m[perms[:, pi], perms[:, pj]]
+    s = (model_d @ d) / np.einsum('ij,ij->i', model_d, model_d)  # best scale per assignment
+    misfit = np.sqrt(np.mean(((s[:, None] * model_d - d[None, :]) / d[None, :]) ** 2, axis=1))
+    best = int(np.argmin(misfit))
+    if misfit[best] > cfg.max_shape_residual:
+        raise DegenerateGeometryError(f'vertices do not fit the target shape (misfit '
+                                      f'{misfit[best]:.3f} > {cfg.max_shape_residual})')
+    # Assignments equivalent under the model's symmetry give the same scale: only a different
+    # scale with a near-equal misfit is a real ambiguity.
+    other = np.abs(s / s[best] - 1.0) > 0.05
+    if np.any(other) and misfit[other].min() < cfg.ambiguity_ratio * max(misfit[best], 1e-4):
+        raise DegenerateGeometryError(f'{n} vertices fit the target at two scales '
+                                      f'({s[best]:.4g} and {s[other][np.argmin(misfit[other])]:.4g})')
+    return perms[best], float(misfit[best])
+
+
+def object_lengths(points: FloatArray, model_m: FloatArray,
+                   cfg: ScaleConfig) -> tuple[FloatArray, FloatArray]:
+    """(measured, true_m) lengths of every vertex pair of one object (see ``assign_to_model``)."""
+    ids, _ = assign_to_model(points, model_m, cfg)
+    pi, pj = _pair_index(len(points))
+    measured = np.linalg.norm(points[pi] - points[pj], axis=1)
+    true_m = np.linalg.norm(model_m[ids[pi]] - model_m[ids[pj]], axis=1)
+    return measured, true_m
+
+
+def regression_scale(measured: FloatArray, true_m: FloatArray) -> tuple[float, float]:
+    """
+    The paper's eq. 9-10: slope and intercept of ``true = S.F. * measured + B``.
+
+    :raises DegenerateGeometryError: when the true lengths barely differ (e.g. only cube
+        edges), since the slope is then set by noise alone.
+    """
+    x, y = np.asarray(measured, float), np.asarray(true_m, float)
+    n = len(x)
+    if n < 2 or np.ptp(y) < 1e-3 * np.mean(y):
+        raise DegenerateGeometryError('eq. 9 needs lengths of different sizes (diagonals)')
+    sf = (n * np.sum(x * y) - x.sum() * y.sum()) / (n * np.sum(x * x) - x.sum() ** 2)
+    return float(sf), float((y.sum() - sf * x.sum()) / n)
+
+
+def zero_intercept_scale(measured: FloatArray, true_m: FloatArray) -> tuple[float, float]:
+    """Least-squares ``true = factor * measured`` (a length of 0 is 0 m); (factor, sigma)."""
+    x, y = np.asarray(measured, float), np.asarray(true_m, float)
+    factor = float(x @ y / (x @ x))
+    dof = max(1, len(x) - 1)
+    sigma = float(np.sqrt(np.sum((y - factor * x) ** 2) / dof / (x @ x)))
+    return factor, sigma
+
+
+def _usable(n_obs: npt.NDArray[np.int64], angles_deg: FloatArray,
+            cfg: ScaleConfig) -> npt.NDArray[np.bool_]:
+    return (np.asarray(n_obs) >= cfg.min_observations) & \
+        (np.asarray(angles_deg) >= cfg.min_angle_deg)
+
+
+def _drop_outlier_vertex(points: FloatArray, model_m: FloatArray,
+                         cfg: ScaleConfig) -> tuple[FloatArray, str | None]:
+    """Leave out the one vertex that spoils the fit to the model, if one clearly does."""
+    try:
+        measured, true_m = object_lengths(points, model_m, cfg)
+        ratio = true_m / measured
+        med = np.median(ratio)
+        mad = 1.4826 * np.median(np.abs(ratio - med)) + 1e-12
+        if not np.any(np.abs(ratio - med) > cfg.outlier_sigma * mad):
+            return points, None
+    except DegenerateGeometryError:
+        if len(points) <= cfg.min_vertices:
+            raise
+    if len(points) <= cfg.min_vertices:
+        return points, None
+    misfits = []
+    for k in range(len(points)):
+        try:
+            misfits.append(assign_to_model(np.delete(points, k, axis=0), model_m, cfg)[1])
+        except DegenerateGeometryError:
+            misfits.append(np.inf)
+    worst = int(np.argmin(misfits))
+    if not np.isfinite(misfits[worst]):
+        raise DegenerateGeometryError('no vertex subset fits the target shape')
+    return np.delete(points, worst, axis=0), f'vertex {worst} left out (misfit ' \
+        f'{misfits[worst]:.4f} without it)'
+
+
+@dataclass(frozen=True, eq=False)
+class ObjectVertices:
+    """
+    The reconstructed vertices of one calibration object.
+
+    :param kind: 'sheet' or 'cube'.
+    :param size_m: sheet (width, height) or cube (edge,), m.
+    :param points: (N, 3) vertices, SfM units (any labelling; matched by shape).
+    :param n_obs: (N,) keyframes that observed each vertex.
+    :param angles_deg: (N,) widest triangulation angle of each vertex, degrees.
+    :param object_id: the object's id, for messages.
+    """
+
+    kind: str
+    size_m: tuple[float, ...]
+    points: FloatArray
+    n_obs: npt.NDArray[np.int64]
+    angles_deg: FloatArray
+    object_id: int = 0
+
+
+def estimate(objects: list[ObjectVertices], cfg: ScaleConfig) -> ScaleEstimate:
+    """
+    Pool every usable object into one metric scale with its uncertainty.
+
+    :raises NotObservableError: when no object passes the gate, or the factor is too
+        uncertain; the message says why.
+    """
+    measured, true_m, rejected = [], [], []
+    for obj in objects:
+        keep = _usable(obj.n_obs, obj.angles_deg, cfg)
+        pts = np.asarray(obj.points, float)[keep]
+        if len(pts) < cfg.min_vertices:
+            rejected.append(f'object {obj.object_id}: {len(pts)} well-observed vertices < '
+                            f'{cfg.min_vertices}')
+            continue
+        model = model_vertices_m(obj.kind, obj.size_m)
+        try:
+            pts, dropped = _drop_outlier_vertex(pts, model, cfg)
+            m, t = object_lengths(pts, model, cfg)
+        except DegenerateGeometryError as err:
+            rejected.append(f'object {obj.object_id}: {err}')
+            continue
+        if dropped:
+            rejected.append(f'object {obj.object_id}: {dropped}')
+        measured.append(m)
+        true_m.append(t)
+    if not measured:
+        raise NotObservableError('; '.join(rejected) or 'no calibration object reconstructed')
+    x, y = np.concatenate(measured), np.concatenate(true_m)
+    factor, sigma = zero_intercept_scale(x, y)
+    # Pairs share vertices, so they are not independent: count the vertices, not the pairs.
+    n_vertices = sum(int(round((1 + np.sqrt(1 + 8 * len(m))) / 2)) for m in measured)
+    sigma *= np.sqrt(len(x) / max(1, n_vertices - 1))
+    t_crit = float(stats.t.ppf(0.5 + cfg.confidence / 2, max(1, n_vertices - 1)))
+    if sigma / factor > cfg.max_relative_sigma:
+        raise NotObservableError(f'scale too uncertain: sigma {100 * sigma / factor:.2f}% > '
+                                 f'{100 * cfg.max_relative_sigma:.2f}% of the factor')
+    return ScaleEstimate(factor, sigma, (factor - t_crit * sigma, factor + t_crit * sigma),
+                         x, y, factor * x - y, len(measured), rejected)

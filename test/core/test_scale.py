@@ -1,0 +1,97 @@
+"""Metric scale from reconstructed target vertices: known answers and refusals."""
+from absscale_ros.core import scale
+from absscale_ros.core.errors import DegenerateGeometryError, NotObservableError
+import numpy as np
+import pytest
+
+CFG = scale.ScaleConfig()
+LETTER = (0.2159, 0.2794)
+
+
+def _rigid(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    return q * np.sign(np.linalg.det(q)), rng.normal(size=3) * 5.0
+
+
+def _reconstructed(kind: str, size: tuple[float, ...], s_true: float, noise_m: float,
+                   rng: np.random.Generator, order=None) -> scale.ObjectVertices:
+    """The model seen by an SfM whose unit is 1/s_true metres, vertices shuffled, noisy."""
+    model = scale.model_vertices_m(kind, size)
+    order = rng.permutation(len(model)) if order is None else np.asarray(order)
+    R, t = _rigid(rng)
+    pts_m = model[order] @ R.T + t + rng.normal(scale=noise_m, size=(len(order), 3))
+    n = len(order)
+    return scale.ObjectVertices(kind, size, pts_m / s_true, np.full(n, 5), np.full(n, 10.0))
+
+
+@pytest.mark.parametrize('kind,size', [('sheet', LETTER), ('cube', (0.8,))])
+def test_recovers_scale_within_its_interval(kind, size) -> None:
+    rng = np.random.default_rng(3)
+    hits = 0
+    for trial in range(30):
+        obj = _reconstructed(kind, size, 0.37, 0.0005, rng)
+        est = scale.estimate([obj], CFG)
+        assert abs(est.factor / 0.37 - 1) < 0.01
+        hits += est.interval[0] <= 0.37 <= est.interval[1]
+    assert hits >= 23  # a 95% interval that is honest, roughly
+
+
+def test_labels_do_not_matter_sheet_cyclic_shift() -> None:
+    rng = np.random.default_rng(0)
+    a = _reconstructed('sheet', LETTER, 2.0, 0.0, rng, order=[0, 1, 2, 3])
+    b = scale.ObjectVertices('sheet', LETTER, np.roll(a.points, 1, axis=0), a.n_obs, a.angles_deg)
+    assert scale.estimate([a], CFG).factor == pytest.approx(2.0, rel=1e-9)
+    assert scale.estimate([b], CFG).factor == pytest.approx(2.0, rel=1e-9)
+
+
+def test_partial_cube_and_pooling() -> None:
+    rng = np.random.default_rng(5)
+    cube = _reconstructed('cube', (0.8,), 0.5, 0.001, rng, order=[0, 1, 3, 5, 7])
+    sheet = _reconstructed('sheet', LETTER, 0.5, 0.0003, rng)
+    est = scale.estimate([cube, sheet], CFG)
+    assert est.objects_used == 2 and len(est.measured) == 10 + 6
+    assert abs(est.factor / 0.5 - 1) < 0.005
+
+
+def test_outlier_vertex_is_dropped() -> None:
+    rng = np.random.default_rng(8)
+    obj = _reconstructed('cube', (0.8,), 1.0, 0.0005, rng, order=list(range(8)))
+    pts = obj.points.copy()
+    pts[2] += 0.05  # a mismatched vertex, 5 cm off
+    est = scale.estimate([scale.ObjectVertices('cube', (0.8,), pts, obj.n_obs,
+                                               obj.angles_deg)], CFG)
+    assert abs(est.factor - 1.0) < 0.003 and any('left out' in r for r in est.rejected)
+
+
+def test_refuses_without_evidence() -> None:
+    rng = np.random.default_rng(1)
+    obj = _reconstructed('sheet', LETTER, 1.0, 0.0, rng)
+    few_obs = scale.ObjectVertices('sheet', LETTER, obj.points, np.array([5, 1, 1, 5]),
+                                   obj.angles_deg)
+    with pytest.raises(NotObservableError, match='well-observed vertices'):
+        scale.estimate([few_obs], CFG)
+    narrow = scale.ObjectVertices('sheet', LETTER, obj.points, obj.n_obs, np.full(4, 0.5))
+    with pytest.raises(NotObservableError):
+        scale.estimate([narrow], CFG)
+    wrong_shape = scale.ObjectVertices('sheet', LETTER, obj.points * [1, 1.3, 1], obj.n_obs,
+                                       obj.angles_deg)
+    with pytest.raises(NotObservableError, match='fit'):
+        scale.estimate([wrong_shape], CFG)
+    with pytest.raises(NotObservableError):
+        scale.estimate([], CFG)
+
+
+def test_noisy_scale_is_not_claimed() -> None:
+    rng = np.random.default_rng(2)
+    obj = _reconstructed('sheet', LETTER, 1.0, 0.004, rng)
+    with pytest.raises(NotObservableError):
+        scale.estimate([obj], scale.ScaleConfig(max_relative_sigma=0.001,
+                                                max_shape_residual=0.2))
+
+
+def test_paper_regression_and_its_degenerate_case() -> None:
+    x = np.array([1.0, 1.414, 1.732, 1.0])
+    sf, b = scale.regression_scale(x, 0.8 * x)
+    assert sf == pytest.approx(0.8) and b == pytest.approx(0.0, abs=1e-12)
+    with pytest.raises(DegenerateGeometryError, match='diagonals'):
+        scale.regression_scale(np.array([1.0, 1.01, 0.99]), np.full(3, 0.8))
