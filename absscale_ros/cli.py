@@ -15,6 +15,8 @@ from absscale_ros.core.errors import AbsScaleError
 COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ('run',): ('absscale_ros.tools.run', 'replay a bag through the node graph, write outputs'),
     ('demo',): ('absscale_ros.tools.demo', 'run the graph on the sample bag in bags/'),
+    ('calibrate',): ('absscale_ros.tools.calibrate', 'camera calibration YAML from a '
+                     'chessboard video'),
     ('bag', 'info'): ('absscale_ros.tools.bag_info', 'topics, types, counts, image sizes of a bag'),
     ('bench', 'replay'): ('absscale_ros.tools.bench_replay', 'bag_replay step-mode throughput'),
     ('simulate',): ('absscale_ros.tools.simulate', 'render a handheld video with ground truth'),
