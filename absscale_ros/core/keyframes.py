@@ -129,6 +129,14 @@ def target_area_fraction(vertices_px: FloatArray, object_ids: npt.NDArray[np.int
     return best / float(width * height)
 
 
+def nominal_camera(width: int, height: int, hfov_deg: float = 65.0) -> CameraModel:
+    """A distortion-free camera of typical field of view, for when no camera_info is known."""
+    f_px = 0.5 * width / np.tan(np.deg2rad(0.5 * hfov_deg))
+    K = np.array([[f_px, 0.0, 0.5 * (width - 1)], [0.0, f_px, 0.5 * (height - 1)],
+                  [0.0, 0.0, 1.0]])
+    return CameraModel(width, height, K)
+
+
 class KeyframeSelector:
     """Stateful selector: call ``update`` once per frame, in stamp order."""
 

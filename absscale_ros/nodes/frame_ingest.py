@@ -1,0 +1,157 @@
+"""
+frame_ingest: camera frames in any supported encoding become clean bgr8 frames.
+
+Subscribes ``image_topic`` (sensor_msgs/Image, or CompressedImage when ``compressed``) and
+``camera_info_topic``; publishes ``/absscale/camera_info`` then ``/absscale/frames`` (bgr8,
+optionally downscaled to ``max_width_px`` and undistorted, intrinsics to match) with the
+source stamp. A frame waits up to ``info_wait_s`` for a camera_info of its size (in step mode
+the info travels on another topic and may arrive just after it); a resolution change
+re-initialises; frames that never get one are dropped with a diagnostic. Every input frame is
+acknowledged (``common.StepAck``). ``calibration_file`` (a ROS calibration YAML) replaces
+camera_info. ``/diagnostics`` once a second: decoded, dropped, missing (stamp gaps in live
+mode), waiting for camera_info.
+"""
+import time
+from typing import Any
+
+from absscale_ros import conversions
+from absscale_ros.core import errors, ingest, pairing
+from absscale_ros.nodes import common
+from diagnostic_msgs.msg import DiagnosticArray
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
+
+
+class FrameIngestNode(Node):
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__('frame_ingest', **kwargs)
+        p = {x.name: x.value for x in self.declare_parameters('', [
+            ('image_topic', '/camera/image_raw/compressed'), ('compressed', True),
+            ('camera_info_topic', '/camera/camera_info'), ('qos', 'reliable'),
+            ('max_width_px', 0), ('undistort', False), ('undistort_alpha', 0.0),
+            ('calibration_file', ''), ('info_wait_s', 1.0), ('hold_frames', 5)])}
+        self._prep = ingest.FramePreparer(ingest.IngestConfig(
+            p['max_width_px'], p['undistort'], p['undistort_alpha']))
+        self._calib = (ingest.load_calibration_yaml(p['calibration_file'])
+                       if p['calibration_file'] else None)
+        self._held: pairing.HoldQueue[tuple[Any, Any]] = pairing.HoldQueue(
+            p['hold_frames'], p['info_wait_s'])
+        self._info: Any = None  # latest input CameraModel
+        self._gaps = ingest.GapCounter()
+        self.decoded = self.dropped = self.reinit = 0
+        self._last_problem = ''
+        qos = common.SENSOR if p['qos'] == 'sensor_data' else common.RELIABLE
+        self._frames_pub = self.create_publisher(Image, '/absscale/frames', common.RELIABLE)
+        self._info_pub = self.create_publisher(CameraInfo, '/absscale/camera_info',
+                                               common.RELIABLE)
+        self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self._ack = common.StepAck(self)
+        self._decode = (conversions.compressed_msg_to_bgr if p['compressed']
+                        else conversions.image_msg_to_bgr)
+        self._sub = self.create_subscription(CompressedImage if p['compressed'] else Image,
+                                             p['image_topic'], self._on_frame, qos)
+        if self._calib is None:
+            self.create_subscription(CameraInfo, p['camera_info_topic'], self._on_info, qos)
+        self.create_timer(0.05, self._expire)
+        self.create_timer(1.0, self._publish_diagnostics)
+
+    def _on_info(self, msg: CameraInfo) -> None:
+        try:
+            self._info = conversions.camera_info_to_model(msg)
+        except errors.AbsScaleError as err:
+            self._problem(f'bad camera_info: {err}')
+            return
+        for header, image in self._held.release(self._ready):
+            self._emit(header, image)
+
+    def _camera_for(self, image: Any) -> Any:
+        """The input camera model of a frame of this size, or None."""
+        h, w = image.shape[:2]
+        cam = self._info if self._calib is None else self._calib
+        if cam is not None and (cam.width, cam.height) != (w, h) and self._calib is not None \
+                and abs(cam.width * h - cam.height * w) <= 0.01 * w * h:
+            cam = cam.resized(w, h)  # a calibration made at another resolution, same aspect
+        return cam if cam is not None and (cam.width, cam.height) == (w, h) else None
+
+    def _ready(self, item: tuple[Any, Any]) -> bool:
+        return self._camera_for(item[1]) is not None
+
+    def _on_frame(self, msg: Any) -> None:
+        self._gaps.add(conversions.stamp_to_ns(msg.header.stamp))
+        try:
+            image = self._decode(msg)
+        except errors.AbsScaleError as err:
+            self._drop(msg.header, f'undecodable frame: {err}')
+            return
+        if self._ready((msg.header, image)):
+            self._emit(msg.header, image)
+            return
+        for header, old in self._held.add((msg.header, image), time.monotonic()):
+            self._drop(header, f'no camera_info for a {old.shape[1]}x{old.shape[0]} frame')
+
+    def _emit(self, header: Any, image: Any) -> None:
+        if self._prep.configure(self._camera_for(image)):
+            self.reinit += 1
+            out = self._prep.camera_out
+            self.get_logger().info(f'input {image.shape[1]}x{image.shape[0]}: publishing '
+                                   f'{out.width}x{out.height}')
+        try:
+            frame = self._prep.process(image)
+        except errors.AbsScaleError as err:
+            self._drop(header, str(err))
+            return
+        stamp_ns = conversions.stamp_to_ns(header.stamp)
+        self._info_pub.publish(conversions.camera_model_to_info_msg(
+            self._prep.camera_out, stamp_ns, header.frame_id))
+        self._frames_pub.publish(conversions.array_to_image_msg(
+            frame, 'bgr8', stamp_ns, header.frame_id))
+        self.decoded += 1
+        # camera_info is not listed: its consumers do not acknowledge it (not frame-carrying).
+        self._ack.ack(header.stamp, self._sub.topic_name, [self._frames_pub.topic_name])
+
+    def _drop(self, header: Any, why: str) -> None:
+        self.dropped += 1
+        self._problem(f'frame dropped: {why}')
+        self._ack.ack(header.stamp, self._sub.topic_name)
+
+    def _problem(self, text: str) -> None:
+        self._last_problem = text
+        self.get_logger().warning(text, throttle_duration_sec=5.0)
+
+    def _expire(self) -> None:
+        for header, image in self._held.expire(time.monotonic()):
+            self._drop(header, f'no camera_info matching {image.shape[1]}x{image.shape[0]} '
+                               f'within {self._held.wait_s} s')
+
+    def report(self) -> dict[str, Any]:
+        """Counts for report.json."""
+        return {'frames_decoded': self.decoded, 'frames_dropped': self.dropped,
+                'frames_missing': self._gaps.missing, 'reinitialised': self.reinit,
+                'waiting': len(self._held)}
+
+    def _publish_diagnostics(self) -> None:
+        level, text = 'ok', 'publishing frames'
+        if self._info is None and self._calib is None:
+            level, text = 'warn', 'waiting for camera_info'
+        elif self._last_problem:
+            level, text = 'warn', self._last_problem
+        self._last_problem = ''
+        status = conversions.diagnostic_status(f'{self.get_name()}: ingest', level, text,
+                                               self.report())
+        self._diag_pub.publish(conversions.diagnostic_array(
+            [status], self.get_clock().now().nanoseconds))
+
+
+def main(args: list[str] | None = None) -> None:
+    rclpy.init(args=args)
+    node = FrameIngestNode()
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()

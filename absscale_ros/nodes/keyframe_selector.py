@@ -1,0 +1,146 @@
+"""
+keyframe_selector: only the frames worth reconstructing go on (``core/keyframes.py``).
+
+Subscribes ``/absscale/frames`` (Image), ``/absscale/vertices`` (PointCloud2, one per frame,
+paired with its frame by stamp in a bounded buffer) and ``/absscale/camera_info``. Publishes,
+for each keyframe, the frame on ``/absscale/keyframes`` and its vertices on
+``/absscale/keyframe_vertices`` with the same stamp (an empty vertices cloud when
+``use_vertices`` is off: then frames alone decide). Every parameter of ``KeyframeConfig`` is a
+ROS parameter. Each input message is acknowledged (``common.StepAck``); ``/diagnostics`` once
+a second: frames, keyframes, blurred, degenerate, tracking lost, time per frame.
+"""
+from collections import Counter
+from dataclasses import fields
+import time
+from typing import Any
+
+from absscale_ros import conversions
+from absscale_ros.core import detect, errors, keyframes, pairing
+from absscale_ros.nodes import common
+from diagnostic_msgs.msg import DiagnosticArray
+import numpy as np
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+
+
+class KeyframeSelectorNode(Node):
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__('keyframe_selector', **kwargs)
+        defaults = keyframes.KeyframeConfig()
+        values = {f.name: self.declare_parameter(f.name, getattr(defaults, f.name)).value
+                  for f in fields(keyframes.KeyframeConfig)}
+        self._selector = keyframes.KeyframeSelector(keyframes.KeyframeConfig(**values))
+        self._use_vertices = self.declare_parameter('use_vertices', True).value
+        depth = self.declare_parameter('pair_depth', 10).value
+        self._pairer: pairing.StampPairer[Image, PointCloud2] = pairing.StampPairer(depth)
+        self._camera: Any = None
+        self._reasons: Counter[str] = Counter()
+        self.keyframe_stamps_ns: list[int] = []
+        self._times_ms: list[float] = []
+        self._kf_pub = self.create_publisher(Image, '/absscale/keyframes', common.RELIABLE)
+        self._kv_pub = self.create_publisher(PointCloud2, '/absscale/keyframe_vertices',
+                                             common.RELIABLE)
+        self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self._ack = common.StepAck(self)
+        self.create_subscription(CameraInfo, '/absscale/camera_info', self._on_info,
+                                 common.RELIABLE)
+        self._frames_sub = self.create_subscription(Image, '/absscale/frames', self._on_frame,
+                                                    common.RELIABLE)
+        self._vert_sub = (self.create_subscription(PointCloud2, '/absscale/vertices',
+                                                   self._on_vertices, common.RELIABLE)
+                          if self._use_vertices else None)
+        self.create_timer(1.0, self._publish_diagnostics)
+
+    def _on_info(self, msg: CameraInfo) -> None:
+        try:
+            self._camera = conversions.camera_info_to_model(msg)
+        except errors.AbsScaleError as err:
+            self.get_logger().warning(f'bad camera_info: {err}', throttle_duration_sec=5.0)
+
+    def _on_frame(self, msg: Image) -> None:
+        if not self._use_vertices:
+            self._decide(msg, None)
+            return
+        self._settle(self._pairer.add_first(conversions.stamp_to_ns(msg.header.stamp), msg))
+
+    def _on_vertices(self, msg: PointCloud2) -> None:
+        self._settle(self._pairer.add_second(conversions.stamp_to_ns(msg.header.stamp), msg))
+
+    def _settle(self, result: pairing.Pairing[Image, PointCloud2]) -> None:
+        for _, frame, vertices in result.pairs:
+            self._decide(frame, vertices)
+        for _, frame in result.dropped_first:
+            self._reasons['unpaired'] += 1
+            self._ack.ack(frame.header.stamp, self._frames_sub.topic_name)
+        for _, vertices in result.dropped_second:
+            self._ack.ack(vertices.header.stamp, self._vert_sub.topic_name)
+
+    def _decide(self, frame: Image, vertices: PointCloud2 | None) -> None:
+        outputs: list[str] = []
+        try:
+            image = conversions.image_msg_to_bgr(frame)
+            h, w = image.shape[:2]
+            camera = self._camera if self._camera is not None and \
+                (self._camera.width, self._camera.height) == (w, h) \
+                else keyframes.nominal_camera(w, h)
+            area = 0.0
+            if vertices is not None and vertices.width > 0:
+                pts = conversions.cloud_msg_to_array(vertices)
+                area = keyframes.target_area_fraction(
+                    np.stack([pts['u'], pts['v']], axis=1), pts['object_id'], w, h)
+            t0 = time.perf_counter()
+            decision = self._selector.update(conversions.stamp_to_ns(frame.header.stamp), image,
+                                             camera, area)
+            self._times_ms.append(1e3 * (time.perf_counter() - t0))
+            self._reasons[decision.reason] += 1
+            if decision.keyframe:
+                self._kv_pub.publish(vertices if vertices is not None else
+                                     conversions.array_to_cloud_msg(
+                                         np.zeros(0, detect.VERTEX_DTYPE), decision.stamp_ns,
+                                         frame.header.frame_id))
+                self._kf_pub.publish(frame)
+                outputs = [self._kv_pub.topic_name, self._kf_pub.topic_name]
+                self.keyframe_stamps_ns.append(decision.stamp_ns)
+        except errors.AbsScaleError as err:
+            self._reasons['dropped'] += 1
+            self.get_logger().warning(f'frame dropped: {err}', throttle_duration_sec=5.0)
+        self._ack.ack(frame.header.stamp, self._frames_sub.topic_name, outputs)
+        if vertices is not None and self._vert_sub is not None:
+            self._ack.ack(vertices.header.stamp, self._vert_sub.topic_name)
+
+    def report(self) -> dict[str, Any]:
+        """Counts and the keyframe stamps, for report.json."""
+        times = np.array(self._times_ms or [np.nan])
+        return {'frames': int(sum(self._reasons.values())),
+                'keyframes': len(self.keyframe_stamps_ns),
+                'keyframe_stamps_ns': list(self.keyframe_stamps_ns),
+                'decisions': dict(self._reasons),
+                'tracking_lost': self._selector.lost_count,
+                'time_ms_median': float(np.median(times))}
+
+    def _publish_diagnostics(self) -> None:
+        r = self.report()
+        r.pop('keyframe_stamps_ns')
+        level, text = 'ok', 'selecting keyframes'
+        if self._camera is None:
+            level, text = 'warn', 'no camera_info yet (assuming a 65 degree field of view)'
+        elif r['frames'] and not r['keyframes']:
+            level, text = 'warn', 'no keyframe yet (degenerate motion or blur)'
+        status = conversions.diagnostic_status(f'{self.get_name()}: keyframes', level, text, r)
+        self._diag_pub.publish(conversions.diagnostic_array(
+            [status], self.get_clock().now().nanoseconds))
+
+
+def main(args: list[str] | None = None) -> None:
+    rclpy.init(args=args)
+    node = KeyframeSelectorNode()
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
