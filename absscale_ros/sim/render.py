@@ -33,7 +33,7 @@ class Frame:
     """
     One rendered view, before camera effects.
 
-    :param colour: (H, W, 3) float32 display-encoded (gamma 2) RGB, about [0, 1.2].
+    :param colour: (H, W, 3) float32 display-encoded (gamma 2) RGB, 8-bit scale (0-255+).
     :param surface: (H, W) int32 surface id behind each pixel centre, ``SKY`` for none.
     :param depth_m: (H, W) float32 z of the hit in the camera frame, m; inf for sky.
     :param grid_points_world_m: (Hg, Wg, 3) hits of the 4-px grid rays (far away for sky).
@@ -101,7 +101,7 @@ class Renderer:
         R = T_world_cam[:3, :3].astype(np.float32)
         rays = np.empty((len(dirs_cam), 6), np.float32)
         rays[:, :3] = T_world_cam[:3, 3].astype(np.float32)
-        rays[:, 3:] = dirs_cam @ R.T
+        rays[:, 3:] = rotate(dirs_cam, R)
         hit = self._rc.cast_rays(o3d.core.Tensor(rays))
         t = hit['t_hit'].numpy()
         prim = hit['primitive_ids'].numpy()
@@ -145,10 +145,9 @@ class Renderer:
         """Render the view from ``T_world_cam`` (4x4, camera to world, m)."""
         h, w = self.camera.height, self.camera.width
         tab = self._tables(T_world_cam)
-        z, row, nd, grid_z = self._hits(T_world_cam, tab)
+        z, row, grid_lod, grid_z = self._hits(T_world_cam, tab)
         pix = self._pix
-        lod = 0.5 * np.log2(np.maximum(z * z * pix.norm_cubed / np.abs(nd), np.float32(1e-12)))
-        lod += textures.lookup(self._lod_offset, row)
+        lod = grid_lod + textures.lookup(self._lod_offset, row)
         z0 = np.where(row == 0, np.float32(0.0), z)
         colour = self._shade(T_world_cam, tab, row, z0, pix, None, lod, (h, w))
         if self.scene.outdoor:
@@ -158,20 +157,26 @@ class Renderer:
         edge = cv2.dilate(surface, _CROSS) != cv2.erode(surface, _CROSS)
         idx = np.flatnonzero(edge)
         if idx.size:
-            acc = np.zeros((idx.size, 3), np.float32)
-            for sub in self._subs:
-                t, srf = self.cast(T_world_cam, sub.dirs[idx])
-                sub_row = (srf + 1).astype(np.uint8)
-                sub_z = np.where(sub_row == 0, np.float32(0.0), t * sub.dz[idx])
-                acc += self._shade(T_world_cam, tab, sub_row, sub_z, sub, idx, lod[idx], None)
-            colour[idx] = acc * np.float32(0.25)
+            n = idx.size
+            dirs = np.concatenate([sub.dirs[idx] for sub in self._subs])
+            t, srf = self.cast(T_world_cam, dirs)
+            sub_row = (srf + 1).astype(np.uint8)
+            dz = np.concatenate([sub.dz[idx] for sub in self._subs])
+            sub_z = np.where(sub_row == 0, np.float32(0.0), t * dz)
+            xy = _Rays.__new__(_Rays)
+            xy.x = np.concatenate([sub.x[idx] for sub in self._subs])
+            xy.y = np.concatenate([sub.y[idx] for sub in self._subs])
+            xy.dirs = dirs
+            samples = self._shade(T_world_cam, tab, sub_row, sub_z, xy, None,
+                                  np.tile(lod[idx], len(self._subs)), None)
+            colour[idx] = samples.reshape(len(self._subs), n, 3).mean(axis=0)
         return Frame(colour.reshape(h, w, 3), surface.astype(np.int32) - 1, z.reshape(h, w),
                      self._grid_points(T_world_cam, grid_z))
 
     def _hits(self, T_world_cam: FloatArray,
               tab: F32) -> tuple[F32, npt.NDArray[np.uint8], F32, F32]:
         """
-        Per pixel: z-depth, surface row (id + 1, uint8), n . phi; plus the grid rays' z.
+        Per pixel: z-depth, surface row (id + 1, uint8), mip level part; the grid rays' z.
 
         Grid pass, exact plane hits inside uniform blocks, casts in mixed blocks.
         """
@@ -195,15 +200,36 @@ class Renderer:
             r = (srf + 1).astype(np.uint8)
             row[mixed] = r
             z[mixed] = t * pix.dz[mixed]
-            nd[mixed] = lk(tab[0], r) * pix.x[mixed] + lk(tab[1], r) * pix.y[mixed] + lk(tab[2], r)
         z[row == 0] = np.inf
-        return z, row, nd, (gt * self._grid.dz).astype(np.float32)
+        grid_z = (gt * self._grid.dz).astype(np.float32)
+        return z, row, self._block_lod(grid_z, gs, tab), grid_z
+
+    def _block_lod(self, grid_z: F32, grid_surface: npt.NDArray[np.int32], tab: F32) -> F32:
+        """
+        Per pixel, the geometric part of the mip level: log2 of the footprint in metres.
+
+        The mip level only sets how blurred a texture is, so it is evaluated at the grid rays
+        and held over each 4x4 block (the sharpest of the block's corners).
+        """
+        h, w = self.camera.height, self.camera.width
+        gh, gw = self._grid_shape
+        r = (grid_surface + 1).astype(np.uint8)
+        gr = self._grid
+        nd = textures.lookup(tab[0], r) * gr.x + textures.lookup(tab[1], r) * gr.y \
+            + textures.lookup(tab[2], r)
+        with np.errstate(divide='ignore', invalid='ignore'):
+            q = grid_z * grid_z * gr.norm_cubed / np.abs(nd)
+        q = np.where(np.isfinite(q) & (q > 0), q, np.float32(1e6)).reshape(gh, gw)
+        q = np.minimum(np.minimum(q[:-1, :-1], q[1:, :-1]), np.minimum(q[:-1, 1:], q[1:, 1:]))
+        lod = (0.5 * np.log2(q)).astype(np.float32)
+        return np.ascontiguousarray(np.broadcast_to(
+            lod[:, None, :, None], (h // BLOCK, BLOCK, w // BLOCK, BLOCK))).reshape(-1)
 
     def _grid_points(self, T_world_cam: FloatArray, grid_z: F32) -> F32:
         gh, gw = self._grid_shape
         far = np.where(np.isfinite(grid_z), grid_z, np.float32(1e5))
         pts_cam = np.stack([self._grid.x * far, self._grid.y * far, far], axis=1)
-        pts = pts_cam @ T_world_cam[:3, :3].T + T_world_cam[:3, 3]
+        pts = rotate(pts_cam, T_world_cam[:3, :3]) + T_world_cam[:3, 3]
         return pts.astype(np.float32).reshape(gh, gw, 3)
 
     def _shade(self, T_world_cam: FloatArray, tab: F32, row: npt.NDArray[np.uint8], z: F32,
@@ -215,7 +241,7 @@ class Renderer:
         :param row: (N,) surface id + 1; :param z: (N,) z-depth, 0 for sky;
         :param rays: the rays, restricted to ``idx`` when given; :param lod: (N,) mip lod.
         :param shape: image shape when the rays are a whole image (the sky is filled later).
-        :returns: (N, 3) float32 RGB.
+        :returns: (N, 3) float32 RGB, 8-bit scale.
         """
         lk = textures.lookup
         x = rays.x if idx is None else rays.x[idx]
@@ -225,32 +251,46 @@ class Renderer:
         ty = z * (lk(tab[8], row) * x + lk(tab[9], row) * y + lk(tab[10], row))
         ty += lk(tab[11], row)
         colour = textures.sample(lk(self._tex_id, row).astype(np.uint8), tx, ty, lod, shape)
-        for c in range(3):
-            colour[:, c] *= lk(self._factor[c], row)
+        factor = cv2.merge([lk(f, row).reshape(-1, 1) for f in self._factor])
+        colour *= factor.reshape(-1, 3)
         if shape is None and self.scene.outdoor:
             sky = np.flatnonzero(row == 0)
             if sky.size:
                 dirs = rays.dirs[sky] if idx is None else rays.dirs[idx[sky]]
-                colour[sky] = self._sky(dirs @ T_world_cam[2, :3].astype(np.float32))
+                colour[sky] = self._sky(dot(dirs, T_world_cam[2, :3]))
         return colour
 
     def _fill_sky(self, colour: F32, row: npt.NDArray[np.uint8], T_world_cam: FloatArray) -> None:
         """Sky of a whole image: the gradient is smooth, so evaluate it on the grid and resize."""
-        sky = np.flatnonzero(row == 0)
-        if not sky.size:
+        sky = row == 0
+        if not sky.any():
             return
         h, w = self.camera.height, self.camera.width
-        up = self._grid.dirs @ T_world_cam[2, :3].astype(np.float32)
+        up = dot(self._grid.dirs, T_world_cam[2, :3])
         grid = self._sky(up).reshape(*self._grid_shape, 3)[:-1, :-1]
-        full = cv2.resize(grid, (w, h), interpolation=cv2.INTER_LINEAR).reshape(-1, 3)
-        colour[sky] = full[sky]
+        full = cv2.resize(grid, (w, h), interpolation=cv2.INTER_LINEAR)
+        # The shader left the sky black (row 0 has a zero colour factor): add it there.
+        cv2.add(colour.reshape(h, w, 3), full, dst=colour.reshape(h, w, 3),
+                mask=sky.reshape(h, w).view(np.uint8))
 
     def _sky(self, up: F32) -> F32:
         """Hazy blue gradient with the ray's world z; indoor scenes are closed and never show it."""
         up = np.sqrt(np.clip(up, 0.0, 1.0))[:, None]
         horizon = np.array([0.85, 0.88, 0.92], np.float32)
         zenith = np.array([0.45, 0.62, 0.88], np.float32)
-        return (horizon + (zenith - horizon) * up).astype(np.float32)
+        return (255.0 * (horizon + (zenith - horizon) * up)).astype(np.float32)
+
+
+def rotate(vectors: F32, R: FloatArray) -> F32:
+    """``vectors @ R.T`` for (N, 3) arrays without BLAS (its threads spin and starve the rest)."""
+    Rf = np.asarray(R, np.float32)
+    return vectors[:, 0:1] * Rf[:, 0] + vectors[:, 1:2] * Rf[:, 1] + vectors[:, 2:3] * Rf[:, 2]
+
+
+def dot(vectors: F32, v: FloatArray) -> F32:
+    """``vectors @ v`` for (N, 3) arrays without BLAS."""
+    vf = np.asarray(v, np.float32)
+    return vectors[:, 0] * vf[0] + vectors[:, 1] * vf[1] + vectors[:, 2] * vf[2]
 
 
 def _lut(values: object) -> F32:

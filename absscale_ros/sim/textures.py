@@ -256,7 +256,7 @@ def sample(tex_ids: npt.NDArray[np.uint8], tx: F32, ty: F32, lod: F32,
     :param ty: (N,) same for the other axis.
     :param lod: (N,) log2 of the pixel footprint in level-0 texels.
     :param shape: (rows, cols) with rows * cols = N to remap as an image (faster), or None.
-    :returns: (N, 3) float32 display-encoded colour in [0, 1].
+    :returns: (N, 3) float32 display-encoded colour in [0, 255].
     """
     at = atlas()
     tables = _slot_tables()
@@ -275,7 +275,7 @@ def sample(tex_ids: npt.NDArray[np.uint8], tx: F32, ty: F32, lod: F32,
                         cv2.INTER_LINEAR).reshape(-1, 3)
     else:
         out = remap_flat(at.image, maps[0], maps[1])
-    return out.astype(np.float32) * np.float32(1.0 / 255.0)
+    return out.astype(np.float32)
 
 
 @functools.lru_cache(maxsize=1)
