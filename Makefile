@@ -10,7 +10,8 @@ STAMP := $(VENV)/.installed
 
 setup: $(STAMP)
 
-$(STAMP): requirements.txt requirements-dev.txt setup.py setup.cfg package.xml
+# Node files are listed so that a new node gets its console script on the next run.
+$(STAMP): requirements.txt requirements-dev.txt setup.py setup.cfg package.xml $(wildcard absscale_ros/nodes/*.py)
 	@# Open3D loads libusb-1.0 at import time; Debian ships it as libusb-1.0-0.
 	@if ! ldconfig -p | grep -q 'libusb-1.0.so.0'; then \
 		echo 'installing Debian package libusb-1.0-0'; \
