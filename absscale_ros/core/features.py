@@ -1,0 +1,130 @@
+"""Keypoints, descriptors and verified matches between two keyframes (OpenCV, no ROS)."""
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from absscale_ros.core.types import CameraModel
+
+FloatArray = npt.NDArray[np.float64]
+IndexArray = npt.NDArray[np.int64]
+DETECTORS = ('sift', 'orb', 'akaze')  # SURF is patented and not in OpenCV's main modules
+
+
+@dataclass(frozen=True)
+class FeatureConfig:
+    """Detection and matching settings."""
+
+    detector: str = 'sift'
+    max_features: int = 2000
+    ratio: float = 0.8  # Lowe's ratio test on the two nearest descriptors
+    ransac_px: float = 1.5  # epipolar distance threshold of the fundamental-matrix check
+    min_inliers: int = 20  # fewer verified matches than this is no match at all
+
+    def __post_init__(self) -> None:
+        if self.detector not in DETECTORS:
+            raise ValueError(f'detector must be one of {DETECTORS}, got {self.detector!r}')
+        if self.max_features < 8 or not 0.0 < self.ratio < 1.0 or self.ransac_px <= 0.0:
+            raise ValueError(f'bad feature config {self}')
+        if self.min_inliers < 8:
+            raise ValueError('min_inliers must be >= 8 (eight-point fundamental matrix)')
+
+
+@dataclass(frozen=True, eq=False)
+class Features:
+    """
+    Keypoints of one keyframe.
+
+    :param keypoints_px: (N, 2) float64 distorted pixel positions as detected.
+    :param points_px: (N, 2) float64 undistorted positions, px of the pinhole ``K``.
+    :param descriptors: (N, D) float32 (SIFT) or uint8 (ORB/AKAZE) descriptors.
+    :param colours_rgb: (N, 3) uint8 image colour at each keypoint.
+    """
+
+    keypoints_px: FloatArray
+    points_px: FloatArray
+    descriptors: npt.NDArray[np.generic]
+    colours_rgb: npt.NDArray[np.uint8]
+
+
+def undistort_px(camera: CameraModel, pixels_px: FloatArray) -> FloatArray:
+    """
+    Map distorted pixels to the ideal pinhole image with the same ``K``.
+
+    :param pixels_px: (N, 2) distorted positions, px.
+    :returns: (N, 2) undistorted positions, px.
+    """
+    pts = np.asarray(pixels_px, np.float64).reshape(-1, 1, 2)
+    if not camera.has_distortion or len(pts) == 0:
+        return pts.reshape(-1, 2).copy()
+    out = cv2.undistortPoints(pts, camera.K, camera.dist, None, camera.K,
+                              criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10))
+    return np.asarray(out, np.float64).reshape(-1, 2)
+
+
+def _detector(cfg: FeatureConfig) -> cv2.Feature2D:
+    if cfg.detector == 'sift':
+        return cv2.SIFT_create(nfeatures=cfg.max_features)
+    if cfg.detector == 'orb':
+        return cv2.ORB_create(nfeatures=cfg.max_features)
+    return cv2.AKAZE_create()
+
+
+def detect(image_bgr: npt.NDArray[np.uint8], camera: CameraModel, cfg: FeatureConfig) -> Features:
+    """
+    Detect keypoints and descriptors in one BGR image.
+
+    :param image_bgr: (H, W, 3) uint8 image.
+    """
+    gray = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY)
+    kps, desc = _detector(cfg).detectAndCompute(gray, None)
+    if desc is None or not kps:
+        return Features(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros((0, 128), np.float32),
+                        np.zeros((0, 3), np.uint8))
+    order = np.argsort([-k.response for k in kps], kind='stable')[:cfg.max_features]
+    xy = np.array([kps[i].pt for i in order], np.float64)
+    ij = np.clip(np.rint(xy).astype(int), 0, [gray.shape[1] - 1, gray.shape[0] - 1])
+    colours = image_bgr[ij[:, 1], ij[:, 0], ::-1].copy()
+    return Features(xy, undistort_px(camera, xy), desc[order], colours)
+
+
+def match(a: Features, b: Features, cfg: FeatureConfig) -> IndexArray:
+    """
+    Ratio-test, mutually consistent matches (no geometric check yet).
+
+    :returns: (M, 2) int64 index pairs into ``a`` and ``b``.
+    """
+    if len(a.descriptors) < 2 or len(b.descriptors) < 2:
+        return np.zeros((0, 2), np.int64)
+    norm = cv2.NORM_L2 if a.descriptors.dtype == np.float32 else cv2.NORM_HAMMING
+    matcher = cv2.BFMatcher(norm)
+    pairs = []
+    for m, n in (p for p in matcher.knnMatch(a.descriptors, b.descriptors, k=2) if len(p) == 2):
+        if m.distance < cfg.ratio * n.distance:
+            pairs.append((m.queryIdx, m.trainIdx))
+    if not pairs:
+        return np.zeros((0, 2), np.int64)
+    out = np.array(pairs, np.int64)
+    # One keypoint of b may not be claimed twice: keep the first (best-ranked a) claim.
+    _, first = np.unique(out[:, 1], return_index=True)
+    return out[np.sort(first)]
+
+
+def verify(points_a_px: FloatArray, points_b_px: FloatArray, cfg: FeatureConfig,
+           rng: np.random.Generator) -> npt.NDArray[np.bool_]:
+    """
+    Geometric verification of putative matches with a RANSAC fundamental matrix.
+
+    :param points_a_px: (M, 2) undistorted px in keyframe a.
+    :param points_b_px: (M, 2) undistorted px in keyframe b.
+    :returns: (M,) inlier mask; all False when fewer than ``cfg.min_inliers`` survive.
+    """
+    mask = np.zeros(len(points_a_px), bool)
+    if len(points_a_px) < cfg.min_inliers:
+        return mask
+    cv2.setRNGSeed(int(rng.integers(2**31 - 1)))  # OpenCV's RANSAC draws from its own RNG
+    F, inl = cv2.findFundamentalMat(points_a_px, points_b_px, cv2.FM_RANSAC, cfg.ransac_px, 0.999)
+    if F is None or inl is None or int(inl.sum()) < cfg.min_inliers:
+        return mask
+    return inl.ravel().astype(bool)

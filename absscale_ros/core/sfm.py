@@ -1,0 +1,209 @@
+"""
+Incremental structure from motion over keyframes (paper Step 3), one call per keyframe.
+
+State is explicit: ``IncrementalSfm`` holds the map segments. A keyframe is registered by PnP
+against the landmarks its features match in the last few keyframes; if that fails it is
+relocalised against the whole segment; if that fails too a new segment is started (the old one
+is kept unchanged). New landmarks are triangulated with the matched keyframes, and the segment's
+``SegmentGraph`` (GTSAM) refines everything.
+"""
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from absscale_ros.core import errors, sfm_graph, sfm_map, twoview
+from absscale_ros.core import features as feat
+from absscale_ros.core.types import CameraModel
+
+FloatArray = npt.NDArray[np.float64]
+Progress = Callable[[str, float], None]
+
+
+@dataclass(frozen=True)
+class SfmConfig:
+    """Settings of the incremental driver and its stages."""
+
+    feature_cfg: feat.FeatureConfig = field(default_factory=feat.FeatureConfig)
+    twoview_cfg: twoview.TwoViewConfig = field(default_factory=twoview.TwoViewConfig)
+    graph_cfg: sfm_graph.GraphConfig = field(default_factory=sfm_graph.GraphConfig)
+    match_window: int = 3  # match each new keyframe against this many previous ones
+    relocalise_window: int = 30  # keyframes tried when the recent ones do not register it
+    min_pnp_inliers: int = 30
+    pnp_px: float = 2.0  # PnP RANSAC reprojection threshold, px
+    max_pending: int = 6  # keyframes kept while waiting for a well-conditioned initial pair
+
+    def __post_init__(self) -> None:
+        if self.match_window < 1 or self.relocalise_window < self.match_window or \
+                self.min_pnp_inliers < 6 or self.pnp_px <= 0.0 or self.max_pending < 2:
+            raise ValueError(f'bad sfm config {self}')
+
+
+@dataclass(frozen=True)
+class UpdateResult:
+    """What one keyframe did: ``status`` is pending, initialised, registered, relocalised,
+    new_segment or rejected; ``message`` says why in words."""
+
+    status: str
+    message: str
+    keyframes: int
+    landmarks: int
+    reprojection_rms_px: float
+    segments: int
+
+
+@dataclass
+class Segment:
+    map: sfm_map.SfmMap
+    graph: sfm_graph.SegmentGraph
+    pending: list[sfm_map.MapKeyframe] = field(default_factory=list)  # before initialisation
+
+    @property
+    def initialised(self) -> bool:
+        return len(self.map.keyframes) >= 2
+
+
+class IncrementalSfm:
+    """Keyframes in, a growing (unscaled) reconstruction out."""
+
+    def __init__(self, camera: CameraModel, cfg: SfmConfig, rng: np.random.Generator,
+                 progress: Progress | None = None) -> None:
+        self.camera, self.cfg, self._rng, self._progress = camera, cfg, rng, progress
+        self.K = camera.K
+        self.segments: list[Segment] = [self._new_segment()]
+        self._next_kf = 0
+
+    def _new_segment(self) -> Segment:
+        return Segment(sfm_map.SfmMap(), sfm_graph.SegmentGraph(self.K, self.cfg.graph_cfg))
+
+    @property
+    def current(self) -> Segment:
+        return self.segments[-1]
+
+    def add_keyframe(self, stamp_ns: int, image_bgr: npt.NDArray[np.uint8]) -> UpdateResult:
+        """Process one keyframe image (H, W, 3) uint8 BGR; see ``UpdateResult``."""
+        f = feat.detect(image_bgr, self.camera, self.cfg.feature_cfg)
+        kf = sfm_map.MapKeyframe(self._next_kf, stamp_ns, np.eye(4), f,
+                                 np.full(len(f.points_px), -1, np.int64))
+        self._next_kf += 1
+        seg = self.current
+        if not seg.initialised:
+            status, msg = self._try_initialise(seg, kf)
+        else:
+            status, msg = self._register(seg, kf)
+        if status in ('registered', 'relocalised') and \
+                len(seg.map.keyframes) % self.cfg.graph_cfg.batch_every == 0:
+            culled = seg.graph.batch(seg.map, self._progress)
+            msg += f'; batch adjustment culled {culled} landmarks'
+        return self._result(status, msg)
+
+    def _result(self, status: str, msg: str) -> UpdateResult:
+        m = self.current.map
+        return UpdateResult(status, msg, len(m.keyframes), len(m.landmarks),
+                            m.reprojection_rms_px(self.K), len(self.segments))
+
+    def _verified(self, a: feat.Features, b: feat.Features) -> npt.NDArray[np.int64]:
+        pairs = feat.match(a, b, self.cfg.feature_cfg)
+        if len(pairs) == 0:
+            return pairs
+        ok = feat.verify(a.points_px[pairs[:, 0]], b.points_px[pairs[:, 1]],
+                         self.cfg.feature_cfg, self._rng)
+        return pairs[ok]
+
+    def _try_initialise(self, seg: Segment, kf: sfm_map.MapKeyframe) -> tuple[str, str]:
+        reason = 'first keyframe of the segment'
+        for first in seg.pending:
+            pairs = self._verified(first.features, kf.features)
+            try:
+                T_b, pts, ok = twoview.initialise(
+                    self.K, first.features.points_px[pairs[:, 0]],
+                    kf.features.points_px[pairs[:, 1]], self.cfg.twoview_cfg, self._rng)
+            except errors.DegenerateGeometryError as err:
+                reason = f'not initialised: {err}'
+                continue
+            first.T_world_cam, kf.T_world_cam = np.eye(4), T_b
+            seg.map.keyframes[first.kf_id] = first
+            seg.map.keyframes[kf.kf_id] = kf
+            self._add_points(seg.map, first, kf, pairs[ok], pts[ok])
+            seg.pending.clear()
+            seg.graph.update(seg.map)
+            seg.graph.batch(seg.map, self._progress)
+            return 'initialised', f'two-view initialisation with {int(ok.sum())} points'
+        seg.pending = (seg.pending + [kf])[-self.cfg.max_pending:]
+        return 'pending', reason
+
+    def _add_points(self, m: sfm_map.SfmMap, a: sfm_map.MapKeyframe, b: sfm_map.MapKeyframe,
+                    pairs: npt.NDArray[np.int64], points_world: FloatArray) -> None:
+        for (i, j), p in zip(pairs, points_world):
+            lm_id = m.add_landmark(p, tuple(int(c) for c in a.features.colours_rgb[i]))
+            m.observe(lm_id, a.kf_id, a.features.points_px[i], int(i))
+            m.observe(lm_id, b.kf_id, b.features.points_px[j], int(j))
+
+    def _register(self, seg: Segment, kf: sfm_map.MapKeyframe) -> tuple[str, str]:
+        ids = sorted(seg.map.keyframes)
+        for status, window in (('registered', self.cfg.match_window),
+                               ('relocalised', self.cfg.relocalise_window)):
+            neighbours = [seg.map.keyframes[i] for i in ids[-window:]][::-1]
+            if status == 'relocalised':
+                neighbours = neighbours[self.cfg.match_window:]
+                if not neighbours:
+                    break
+            matches = {n.kf_id: self._verified(n.features, kf.features) for n in neighbours}
+            inliers = self._pnp(seg.map, kf, neighbours, matches)
+            if inliers is not None:
+                seg.map.keyframes[kf.kf_id] = kf
+                for lm_id, j in inliers:
+                    seg.map.observe(lm_id, kf.kf_id, kf.features.points_px[j], j)
+                added = sum(self._triangulate(seg.map, n, kf, matches[n.kf_id])
+                            for n in neighbours[:self.cfg.match_window])
+                seg.graph.update(seg.map)
+                return status, f'{len(inliers)} PnP inliers, {added} new landmarks'
+        self.segments.append(self._new_segment())
+        self.current.pending.append(kf)
+        return 'new_segment', (f'keyframe {kf.kf_id} could not be registered or relocalised: '
+                               f'segment {len(self.segments) - 1} kept, new segment started')
+
+    def _pnp(self, m: sfm_map.SfmMap, kf: sfm_map.MapKeyframe,
+             neighbours: list[sfm_map.MapKeyframe],
+             matches: dict[int, npt.NDArray[np.int64]]) -> list[tuple[int, int]] | None:
+        corr: dict[int, int] = {}  # keypoint of kf -> landmark
+        claimed: set[int] = set()
+        for n in neighbours:
+            for i, j in matches[n.kf_id]:
+                lm_id = int(n.landmark_of[i])
+                if lm_id >= 0 and int(j) not in corr and lm_id not in claimed:
+                    corr[int(j)] = lm_id
+                    claimed.add(lm_id)
+        if len(corr) < self.cfg.min_pnp_inliers:
+            return None
+        kps = np.array(list(corr), np.int64)
+        lms = [corr[int(j)] for j in kps]
+        obj = np.array([m.landmarks[i].point_world for i in lms])
+        img = kf.features.points_px[kps]
+        cv2.setRNGSeed(int(self._rng.integers(2**31 - 1)))
+        ok, rvec, tvec, inl = cv2.solvePnPRansac(obj, img, self.K, None, iterationsCount=200,
+                                                 reprojectionError=self.cfg.pnp_px,
+                                                 confidence=0.999, flags=cv2.SOLVEPNP_EPNP)
+        if not ok or inl is None or len(inl) < self.cfg.min_pnp_inliers:
+            return None
+        inl = inl.ravel()
+        _, rvec, tvec = cv2.solvePnP(obj[inl], img[inl], self.K, None, rvec, tvec, True,
+                                     cv2.SOLVEPNP_ITERATIVE)
+        R = cv2.Rodrigues(rvec)[0]  # camera-from-world
+        kf.T_world_cam = np.eye(4)
+        kf.T_world_cam[:3, :3], kf.T_world_cam[:3, 3] = R.T, (-R.T @ tvec).ravel()
+        return [(lms[i], int(kps[i])) for i in inl]
+
+    def _triangulate(self, m: sfm_map.SfmMap, a: sfm_map.MapKeyframe, b: sfm_map.MapKeyframe,
+                     pairs: npt.NDArray[np.int64]) -> int:
+        free = pairs[(a.landmark_of[pairs[:, 0]] < 0) & (b.landmark_of[pairs[:, 1]] < 0)] \
+            if len(pairs) else pairs
+        if len(free) == 0:
+            return 0
+        pts, ok = twoview.triangulate(self.K, a.T_world_cam, b.T_world_cam,
+                                      a.features.points_px[free[:, 0]],
+                                      b.features.points_px[free[:, 1]], self.cfg.twoview_cfg)
+        self._add_points(m, a, b, free[ok], pts[ok])
+        return int(ok.sum())

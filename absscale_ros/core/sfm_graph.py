@@ -1,0 +1,141 @@
+"""
+GTSAM bundle adjustment of one map segment: iSAM2 per keyframe, periodic batch LM.
+
+Keys: camera of keyframe ``i`` is ``X(i)``, landmark ``j`` is ``L(j)`` (``pose_key``,
+``point_key``: the only mapping from ids to keys). Measurements are undistorted pixels, so the
+factors use ``Cal3_S2`` with the CameraInfo ``K``.
+"""
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import gtsam
+from gtsam.symbol_shorthand import L, X
+import numpy as np
+import numpy.typing as npt
+
+from absscale_ros.core import sfm_map
+
+FloatArray = npt.NDArray[np.float64]
+Progress = Callable[[str, float], None]
+
+
+@dataclass(frozen=True)
+class GraphConfig:
+    """Noise and schedule of the bundle adjustment."""
+
+    sigma_px: float = 1.0  # measurement noise of a feature, px
+    vertex_weight: float = 2.0  # cost weight of target-vertex observations: sigma / sqrt(w)
+    huber_k: float = 1.345  # Huber threshold in sigmas
+    batch_every: int = 10  # full Levenberg-Marquardt every this many keyframes
+    batch_iterations: int = 25
+    cull_px: float = 3.0  # observations further than this after a batch are dropped
+
+    def __post_init__(self) -> None:
+        if min(self.sigma_px, self.vertex_weight, self.huber_k, self.cull_px) <= 0.0 or \
+                self.batch_every < 1 or self.batch_iterations < 1:
+            raise ValueError(f'bad graph config {self}')
+
+
+def pose_key(kf_id: int) -> int:
+    return X(kf_id)
+
+
+def point_key(lm_id: int) -> int:
+    return L(lm_id)
+
+
+class SegmentGraph:
+    """Incremental smoother of one ``SfmMap``; the map holds the estimate after each call."""
+
+    def __init__(self, K: FloatArray, cfg: GraphConfig) -> None:
+        self._cfg = cfg
+        self._cal = gtsam.Cal3_S2(K[0, 0], K[1, 1], K[0, 1], K[0, 2], K[1, 2])
+        huber = gtsam.noiseModel.mEstimator.Huber.Create(cfg.huber_k)
+        self._noise = gtsam.noiseModel.Robust.Create(
+            huber, gtsam.noiseModel.Isotropic.Sigma(2, cfg.sigma_px))
+        self._vertex_noise = gtsam.noiseModel.Robust.Create(
+            huber, gtsam.noiseModel.Isotropic.Sigma(2, cfg.sigma_px / np.sqrt(cfg.vertex_weight)))
+        self._reset()
+
+    def _reset(self) -> None:
+        params = gtsam.ISAM2Params()
+        params.setRelinearizeThreshold(0.01)
+        self._isam = gtsam.ISAM2(params)
+        self._factors: set[tuple[int, int]] = set()  # (kf_id, lm_id) already in iSAM2
+        self._keys: set[int] = set()
+        self._gauge_done = False
+
+    def _factor(self, m: sfm_map.SfmMap, kf_id: int, lm_id: int) -> gtsam.NonlinearFactor:
+        lm = m.landmarks[lm_id]
+        noise = self._vertex_noise if lm.label is not None else self._noise
+        return gtsam.GenericProjectionFactorCal3_S2(
+            gtsam.Point2(*lm.obs_px[kf_id]), noise, pose_key(kf_id), point_key(lm_id), self._cal)
+
+    def _gauge(self, m: sfm_map.SfmMap, graph: gtsam.NonlinearFactorGraph) -> None:
+        """Fix the first pose and the distance to the second (7 gauge freedoms of monocular)."""
+        ids = sorted(m.keyframes)[:2]
+        a, b = m.keyframes[ids[0]].T_world_cam, m.keyframes[ids[1]].T_world_cam
+        graph.add(gtsam.PriorFactorPose3(pose_key(ids[0]), gtsam.Pose3(a),
+                                         gtsam.noiseModel.Isotropic.Sigma(6, 1e-4)))
+        graph.add(gtsam.RangeFactorPose3(pose_key(ids[0]), pose_key(ids[1]),
+                                         float(np.linalg.norm(b[:3, 3] - a[:3, 3])),
+                                         gtsam.noiseModel.Isotropic.Sigma(1, 1e-4)))
+
+    def _new_terms(self, m: sfm_map.SfmMap) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        if not self._gauge_done:
+            self._gauge(m, graph)
+            self._gauge_done = True
+        for lm_id, lm in m.landmarks.items():
+            if len(lm.obs_px) < 2:
+                continue
+            for kf_id in lm.obs_px:
+                if (kf_id, lm_id) in self._factors:
+                    continue
+                self._factors.add((kf_id, lm_id))
+                graph.add(self._factor(m, kf_id, lm_id))
+                if pose_key(kf_id) not in self._keys:
+                    self._keys.add(pose_key(kf_id))
+                    values.insert(pose_key(kf_id), gtsam.Pose3(m.keyframes[kf_id].T_world_cam))
+            if point_key(lm_id) not in self._keys:
+                self._keys.add(point_key(lm_id))
+                values.insert(point_key(lm_id), gtsam.Point3(*lm.point_world))
+        return graph, values
+
+    def _write_back(self, m: sfm_map.SfmMap, est: gtsam.Values) -> None:
+        for kf_id, kf in m.keyframes.items():
+            if est.exists(pose_key(kf_id)):
+                kf.T_world_cam = est.atPose3(pose_key(kf_id)).matrix()
+        for lm_id, lm in m.landmarks.items():
+            if est.exists(point_key(lm_id)):
+                lm.point_world = np.asarray(est.atPoint3(point_key(lm_id)), np.float64)
+
+    def update(self, m: sfm_map.SfmMap) -> None:
+        """Add the map's new observations to iSAM2, update, write the estimate into ``m``."""
+        graph, values = self._new_terms(m)
+        if graph.size() == 0:
+            return
+        self._isam.update(graph, values)
+        self._write_back(m, self._isam.calculateEstimate())
+
+    def batch(self, m: sfm_map.SfmMap, progress: Progress | None = None) -> int:
+        """
+        Levenberg-Marquardt over the whole segment, cull outliers, restart iSAM2 from the result.
+
+        :returns: number of landmarks culled.
+        """
+        self._reset()
+        graph, values = self._new_terms(m)
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(self._cfg.batch_iterations)
+        opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+        if progress is not None:
+            progress('batch start', graph.error(values))
+        result = opt.optimize()
+        if progress is not None:
+            progress('batch done', graph.error(result))
+        self._write_back(m, result)
+        culled = m.cull(np.array(self._cal.K()), self._cfg.cull_px)
+        self._reset()
+        self.update(m)
+        return culled

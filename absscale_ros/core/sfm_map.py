@@ -1,0 +1,112 @@
+"""The state of one SfM map segment: keyframe poses, landmarks and their observations."""
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from absscale_ros.core import features as feat
+from absscale_ros.core import twoview
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass
+class MapKeyframe:
+    """
+    One registered keyframe.
+
+    :param T_world_cam: (4, 4) pose, SfM units (camera to map frame).
+    :param landmark_of: (N,) landmark id of each keypoint, -1 for none.
+    """
+
+    kf_id: int
+    stamp_ns: int
+    T_world_cam: FloatArray
+    features: feat.Features
+    landmark_of: npt.NDArray[np.int64]
+
+
+@dataclass
+class Landmark:
+    """
+    A 3D point and its observations; a target vertex when ``label`` is (object_id, vertex_id).
+
+    :param point_world: (3,) position, SfM units.
+    :param obs_px: kf_id -> (2,) undistorted px observation.
+    """
+
+    point_world: FloatArray
+    colour_rgb: tuple[int, int, int]
+    obs_px: dict[int, FloatArray] = field(default_factory=dict)
+    label: tuple[int, int] | None = None
+
+
+@dataclass
+class SfmMap:
+    """Keyframes and landmarks of one map segment, with id counters (ids never reused)."""
+
+    keyframes: dict[int, MapKeyframe] = field(default_factory=dict)
+    landmarks: dict[int, Landmark] = field(default_factory=dict)
+    next_landmark_id: int = 0
+
+    def add_landmark(self, point_world: FloatArray, colour_rgb: tuple[int, int, int],
+                     label: tuple[int, int] | None = None) -> int:
+        lm_id = self.next_landmark_id
+        self.next_landmark_id += 1
+        self.landmarks[lm_id] = Landmark(np.asarray(point_world, np.float64), colour_rgb,
+                                         label=label)
+        return lm_id
+
+    def observe(self, lm_id: int, kf_id: int, point_px: FloatArray, kp_index: int = -1) -> None:
+        """Record that keyframe ``kf_id`` sees landmark ``lm_id`` at ``point_px`` (undistorted)."""
+        self.landmarks[lm_id].obs_px[kf_id] = np.asarray(point_px, np.float64)
+        if kp_index >= 0:
+            self.keyframes[kf_id].landmark_of[kp_index] = lm_id
+
+    def unobserve(self, lm_id: int, kf_id: int) -> None:
+        self.landmarks[lm_id].obs_px.pop(kf_id, None)
+        lof = self.keyframes[kf_id].landmark_of
+        lof[lof == lm_id] = -1
+
+    def remove_landmark(self, lm_id: int) -> None:
+        for kf_id in list(self.landmarks[lm_id].obs_px):
+            self.unobserve(lm_id, kf_id)
+        del self.landmarks[lm_id]
+
+    def residuals_px(self, K: FloatArray) -> list[tuple[int, int, float]]:
+        """(landmark id, keyframe id, reprojection error px) of every observation."""
+        out = []
+        for lm_id, lm in self.landmarks.items():
+            for kf_id, uv in lm.obs_px.items():
+                T = self.keyframes[kf_id].T_world_cam
+                err = np.linalg.norm(twoview.project(K, T, lm.point_world[None])[0] - uv)
+                out.append((lm_id, kf_id, float(err)))
+        return out
+
+    def reprojection_rms_px(self, K: FloatArray) -> float:
+        errs = np.array([e for _, _, e in self.residuals_px(K)])
+        return float(np.sqrt(np.mean(errs**2))) if errs.size else float('nan')
+
+    def cull(self, K: FloatArray, max_px: float) -> int:
+        """
+        Drop observations with reprojection error over ``max_px`` (non-finite counts as over),
+        then landmarks seen by fewer than two keyframes. Returns the landmarks removed.
+        """
+        for lm_id, kf_id, err in self.residuals_px(K):
+            if not err <= max_px:
+                self.unobserve(lm_id, kf_id)
+        weak = [i for i, lm in self.landmarks.items() if len(lm.obs_px) < 2]
+        for lm_id in weak:
+            self.remove_landmark(lm_id)
+        return len(weak)
+
+    def poses(self) -> tuple[list[int], FloatArray]:
+        """Keyframe ids in order and their (K, 4, 4) T_world_cam."""
+        ids = sorted(self.keyframes)
+        return ids, np.array([self.keyframes[i].T_world_cam for i in ids]).reshape(-1, 4, 4)
+
+    def cloud(self) -> tuple[FloatArray, npt.NDArray[np.uint8]]:
+        """(N, 3) landmark positions (SfM units) and (N, 3) uint8 RGB colours."""
+        lms = list(self.landmarks.values())
+        return (np.array([lm.point_world for lm in lms]).reshape(-1, 3),
+                np.array([lm.colour_rgb for lm in lms], np.uint8).reshape(-1, 3))
