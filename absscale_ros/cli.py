@@ -17,12 +17,13 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ('demo',): ('absscale_ros.tools.demo', 'run the graph on the sample bag in bags/'),
     ('calibrate',): ('absscale_ros.tools.calibrate', 'camera calibration YAML from a '
                      'chessboard video'),
-    ('bag', 'info'): ('absscale_ros.tools.bag_info', 'topics, types, counts, image sizes of a bag'),
+    ('bag', 'info'): ('absscale_ros.tools.bag_info', 'topics, types, counts, image sizes'),
     ('bench', 'replay'): ('absscale_ros.tools.bench_replay', 'bag_replay step-mode throughput'),
     ('simulate',): ('absscale_ros.tools.simulate', 'render a handheld video with ground truth'),
     ('bench', 'render'): ('absscale_ros.tools.bench_render', 'simulator rendering speed'),
     ('detect',): ('absscale_ros.tools.detect', 'detect target vertices in image files'),
     ('bench', 'detect'): ('absscale_ros.tools.bench_detect', 'detection accuracy against gt.json'),
+    ('bench', 'keyframes'): ('absscale_ros.tools.bench_keyframes', 'keyframes against gt.json'),
 }
 
 
@@ -46,8 +47,9 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     found = _find(argv)
     if found is None:
-        print(_usage(), file=sys.stderr if argv and argv[0] not in ('-h', '--help') else sys.stdout)
-        return 0 if argv and argv[0] in ('-h', '--help') else 2
+        asked = bool(argv) and argv[0] in ('-h', '--help')
+        print(_usage(), file=sys.stdout if asked else sys.stderr)
+        return 0 if asked else 2
     path, rest = found
     module_name, text = COMMANDS[path]
     module = importlib.import_module(module_name)

@@ -167,7 +167,8 @@ class KeyframeSelector:
 
     def _sharpness_ratio(self, grey: npt.NDArray[np.uint8]) -> float:
         score = sharpness(grey)
-        ratio = score / float(np.median(self._scores)) if len(self._scores) >= 3 else 1.0
+        median = float(np.median(self._scores)) if len(self._scores) >= 3 else 0.0
+        ratio = score / median if median > 0.0 else 1.0
         self._scores.append(score)
         return ratio if np.isfinite(ratio) else 1.0
 
