@@ -18,6 +18,7 @@ class FeatureConfig:
 
     detector: str = 'sift'
     max_features: int = 2000
+    sift_contrast: float = 0.01  # SIFT contrast threshold; OpenCV's 0.04 starves smooth walls
     ratio: float = 0.8  # Lowe's ratio test on the two nearest descriptors
     ransac_px: float = 1.5  # epipolar distance threshold of the fundamental-matrix check
     min_inliers: int = 20  # fewer verified matches than this is no match at all
@@ -65,7 +66,7 @@ def undistort_px(camera: CameraModel, pixels_px: FloatArray) -> FloatArray:
 
 def _detector(cfg: FeatureConfig) -> cv2.Feature2D:
     if cfg.detector == 'sift':
-        return cv2.SIFT_create(nfeatures=cfg.max_features)
+        return cv2.SIFT_create(nfeatures=cfg.max_features, contrastThreshold=cfg.sift_contrast)
     if cfg.detector == 'orb':
         return cv2.ORB_create(nfeatures=cfg.max_features)
     return cv2.AKAZE_create()

@@ -75,13 +75,22 @@ class SfmMap:
 
     def residuals_px(self, K: FloatArray) -> list[tuple[int, int, float]]:
         """(landmark id, keyframe id, reprojection error px) of every observation."""
-        out = []
+        lm_ids, kf_ids, uvs = [], [], []
         for lm_id, lm in self.landmarks.items():
             for kf_id, uv in lm.obs_px.items():
-                T = self.keyframes[kf_id].T_world_cam
-                err = np.linalg.norm(twoview.project(K, T, lm.point_world[None])[0] - uv)
-                out.append((lm_id, kf_id, float(err)))
-        return out
+                lm_ids.append(lm_id)
+                kf_ids.append(kf_id)
+                uvs.append(uv)
+        if not uvs:
+            return []
+        pts = np.array([self.landmarks[i].point_world for i in lm_ids])
+        T = np.array([self.keyframes[i].T_world_cam for i in kf_ids])
+        p_cam = np.einsum('nji,nj->ni', T[:, :3, :3], pts - T[:, :3, 3])
+        with np.errstate(divide='ignore', invalid='ignore'):
+            uv_hat = p_cam[:, :2] / p_cam[:, 2:] @ K[:2, :2].T + K[:2, 2]
+        err = np.linalg.norm(uv_hat - np.array(uvs), axis=1)
+        err[~(p_cam[:, 2] > 0.0)] = np.inf
+        return list(zip(lm_ids, kf_ids, err.tolist()))
 
     def reprojection_rms_px(self, K: FloatArray) -> float:
         errs = np.array([e for _, _, e in self.residuals_px(K)])

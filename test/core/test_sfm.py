@@ -1,0 +1,57 @@
+"""
+Incremental SfM on rendered simulator keyframes (not yet from bags: keyframes are every rendered
+view of a short orbit, see ``sfm_scenes``), scored after a Sim(3) alignment to ground truth.
+"""
+from pathlib import Path
+import sys
+
+import numpy as np
+import pytest
+
+from absscale_ros.core import align, errors, sfm
+
+sys.path.insert(0, str(Path(__file__).parent))
+import sfm_scenes  # noqa: E402
+
+
+def _run(seq: sfm_scenes.Sequence) -> tuple[sfm.IncrementalSfm, list[sfm.UpdateResult]]:
+    engine = sfm.IncrementalSfm(seq.camera, sfm.SfmConfig(), np.random.default_rng(7))
+    return engine, [engine.add_keyframe(k, img) for k, img in enumerate(seq.images_bgr)]
+
+
+@pytest.mark.parametrize('scene, seed', [('outdoor_cube', 1), ('indoor_paper', 0)])
+def test_keyframe_centres_and_reprojection(scene: str, seed: int) -> None:
+    seq = sfm_scenes.make_sequence(scene, seed, count=10)
+    engine, results = _run(seq)
+    assert results[-1].segments == 1 and results[-1].keyframes == 10
+    ids, T = engine.current.map.poses()
+    gt = seq.T_world_cams[ids, :3, 3]
+    s, R, t = align.umeyama(T[:, :3, 3], gt)
+    length_m = float(np.sum(np.linalg.norm(np.diff(seq.T_world_cams[:, :3, 3], axis=0), axis=1)))
+    rmse_m = align.rmse(align.apply(s, R, t, T[:, :3, 3]), gt)
+    assert rmse_m <= 0.003 * length_m  # issue 6: <= 0.3 % of the trajectory length
+    assert results[-1].reprojection_rms_px <= 1.0
+
+
+def test_pure_rotation_never_initialises() -> None:
+    seq = sfm_scenes.make_sequence('outdoor_cube', 2, count=5, arc_deg=30.0, rotate_only=True)
+    _, results = _run(seq)
+    assert all(r.status == 'pending' and r.keyframes == 0 for r in results)
+    assert 'rotation' in results[-1].message or 'parallax' in results[-1].message
+
+
+def test_umeyama_recovers_a_similarity() -> None:
+    rng = np.random.default_rng(3)
+    src = rng.normal(size=(20, 3))
+    q = rng.normal(size=4)
+    q /= np.linalg.norm(q)
+    w, x, y, z = q
+    R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                  [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                  [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    dst = 2.5 * src @ R.T + [1.0, -2.0, 0.5]
+    s, R_hat, t_hat = align.umeyama(src, dst)
+    assert s == pytest.approx(2.5, rel=1e-9)
+    assert np.allclose(R_hat, R, atol=1e-9) and np.allclose(t_hat, [1.0, -2.0, 0.5], atol=1e-9)
+    with pytest.raises(errors.DegenerateGeometryError):
+        align.umeyama(src[:2], dst[:2])
