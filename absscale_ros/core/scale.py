@@ -118,8 +118,9 @@ def assign_to_model(points: FloatArray, model_m: FloatArray,
     # scale with a near-equal misfit is a real ambiguity.
     other = np.abs(s / s[best] - 1.0) > 0.05
     if np.any(other) and misfit[other].min() < cfg.ambiguity_ratio * max(misfit[best], 1e-4):
+        rival = s[other][np.argmin(misfit[other])]
         raise DegenerateGeometryError(f'{n} vertices fit the target at two scales '
-                                      f'({s[best]:.4g} and {s[other][np.argmin(misfit[other])]:.4g})')
+                                      f'({s[best]:.4g} and {rival:.4g})')
     return perms[best], float(misfit[best])
 
 

@@ -10,10 +10,8 @@ from typing import Any
 
 from absscale_ros import bagio, conversions
 from absscale_ros.core import replay
-from absscale_ros.core.errors import AbsScaleError, BagError
+from absscale_ros.core.errors import BagError
 from absscale_ros.nodes import common
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from std_msgs.msg import Header
 
@@ -186,18 +184,4 @@ def _csv(text: str) -> list[str]:
 
 
 def main(args: list[str] | None = None) -> None:
-    rclpy.init(args=args)
-    try:
-        node = BagReplayNode()
-    except AbsScaleError as err:
-        print(f'bag_replay: error: {err}')
-        rclpy.try_shutdown()
-        raise SystemExit(1)
-    try:
-        while rclpy.ok() and not node.finished:
-            rclpy.spin_once(node, timeout_sec=0.1)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    common.run_node(BagReplayNode, args)

@@ -44,3 +44,32 @@ class StepAck:
 
     def _resolve(self, topic: str) -> str:
         return self._node.resolve_topic_name(topic)
+
+
+def run_node(node_cls: type, args: list[str] | None = None) -> None:
+    """
+    The console-script ``main`` of every node (Jazzy style, see STYLE.md).
+
+    An expected failure while starting (bad parameter value, missing file) is one line and
+    exit 1; a node with a ``finished`` attribute (bag_replay, video_source on a file) ends
+    the process when it turns True.
+    """
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+
+    from absscale_ros.core.errors import AbsScaleError
+    rclpy.init(args=args)
+    try:
+        node = node_cls()
+    except (AbsScaleError, ValueError) as err:
+        print(f'{node_cls.__name__}: error: {err}')
+        rclpy.try_shutdown()
+        raise SystemExit(1)
+    try:
+        while rclpy.ok() and not getattr(node, 'finished', False):
+            rclpy.spin_once(node, timeout_sec=0.1)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()

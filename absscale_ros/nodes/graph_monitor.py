@@ -10,8 +10,6 @@ from absscale_ros import conversions
 from absscale_ros.core.errors import AbsScaleError
 from absscale_ros.nodes import common
 from diagnostic_msgs.msg import DiagnosticArray
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
 WATCHED_PREFIXES = ('/absscale/', '/scaled_cloud')
@@ -72,12 +70,4 @@ class GraphMonitorNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    rclpy.init(args=args)
-    node = GraphMonitorNode()
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    common.run_node(GraphMonitorNode, args)

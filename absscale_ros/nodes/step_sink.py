@@ -7,8 +7,6 @@ It subscribes to one topic of any type, keeps each message's serialized bytes if
 from typing import Any
 
 from absscale_ros.nodes import common
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 
@@ -38,12 +36,4 @@ class StepSinkNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    rclpy.init(args=args)
-    node = StepSinkNode()
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    common.run_node(StepSinkNode, args)

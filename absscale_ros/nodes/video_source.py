@@ -16,8 +16,6 @@ from absscale_ros.nodes import common
 import cv2
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 
@@ -101,18 +99,4 @@ class VideoSourceNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    rclpy.init(args=args)
-    try:
-        node = VideoSourceNode()
-    except AbsScaleError as err:
-        print(f'video_source: error: {err}')
-        rclpy.try_shutdown()
-        raise SystemExit(1)
-    try:
-        while rclpy.ok() and not node.finished:
-            rclpy.spin_once(node, timeout_sec=0.1)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    common.run_node(VideoSourceNode, args)
