@@ -123,7 +123,7 @@ def baseline_ratio(R: FloatArray, t: FloatArray, xy0: FloatArray, xy1: FloatArra
 
 
 def analyse(xy0: FloatArray, xy1: FloatArray, sigma_norm: float, min_inliers: int,
-            min_parallax: float = 0.0) -> Motion:
+            min_parallax: float = 0.0, min_inlier_ratio: float = 0.5) -> Motion:
     """
     Fit E and a pure rotation to the pairs, pick by GRIC, and measure the baseline ratio.
 
@@ -133,6 +133,11 @@ def analyse(xy0: FloatArray, xy1: FloatArray, sigma_norm: float, min_inliers: in
     :param min_inliers: fewer E inliers than this is degenerate (not enough evidence).
     :param min_parallax: less parallax than this (normalised units) is degenerate: a tiny
         baseline, or KLT drift over a long rotation that GRIC alone may take for one.
+    :param min_inlier_ratio: a smaller fraction of E inliers is degenerate (no consistent
+        motion: tracks gone wrong).
+
+    Both models are scored on every pair (GRIC caps the outliers' cost), not on the E
+    inliers only: that would favour E by construction.
     """
     nan = float('nan')
     if len(xy0) < max(min_inliers, 5):
@@ -141,16 +146,17 @@ def analyse(xy0: FloatArray, xy1: FloatArray, sigma_norm: float, min_inliers: in
     if E is None or E.shape != (3, 3):
         return Motion(0, nan, nan, nan, True, nan)
     inl = mask.ravel().astype(bool)
-    if np.count_nonzero(inl) < min_inliers:
-        return Motion(int(np.count_nonzero(inl)), nan, nan, nan, True, nan)
+    n_inl = int(np.count_nonzero(inl))
+    if n_inl < max(min_inliers, min_inlier_ratio * len(xy0)):
+        return Motion(n_inl, nan, nan, nan, True, nan)
     a, b = xy0[inl], xy1[inl]
     sigma_sq = sigma_norm * sigma_norm
-    g_e = gric(sampson_sq(E, a, b), sigma_sq, 3, 5)
-    _, rot_sq = rotation_fit(a, b)
+    g_e = gric(sampson_sq(E, xy0, xy1), sigma_sq, 3, 5)
+    _, rot_sq = rotation_fit(xy0, xy1)
     g_rot = gric(rot_sq, sigma_sq, 2, 3)
-    parallax = float(np.sqrt(np.median(rot_sq)))
+    parallax = float(np.sqrt(np.median(rot_sq[inl])))
     if g_rot <= g_e or parallax < min_parallax:
-        return Motion(len(a), g_e, g_rot, parallax, True, nan)
+        return Motion(n_inl, g_e, g_rot, parallax, True, nan)
     _, R, t, _ = cv2.recoverPose(E, a, b, np.eye(3))
     ratio = baseline_ratio(R, t.ravel(), a, b)
-    return Motion(len(a), g_e, g_rot, parallax, not np.isfinite(ratio), ratio)
+    return Motion(n_inl, g_e, g_rot, parallax, not np.isfinite(ratio), ratio)

@@ -37,6 +37,8 @@ class KeyframeConfig:
         running median is blurred.
     :param min_tracked_ratio: a keyframe is due when fewer than this fraction of the last
         keyframe's corners are still tracked.
+    :param max_track_error: largest KLT residual (mean absolute grey-level difference over the
+        window) of a corner still counted as tracked.
     :param lost_tracks: fewer tracked corners than this means tracking is lost.
     :param min_flow_px: median corner displacement (tracking scale) before the (costlier)
         two-view test runs.
@@ -58,6 +60,7 @@ class KeyframeConfig:
     blur_window: int = 15
     min_sharpness_ratio: float = 0.6
     min_tracked_ratio: float = 0.5
+    max_track_error: float = 20.0
     lost_tracks: int = 20
     min_flow_px: float = 6.0
     min_baseline_ratio: float = 0.03
@@ -80,8 +83,10 @@ class KeyframeConfig:
                              '<= max_baseline_ratio')
         if self.lost_tracks < 5 or self.min_inliers < 5 or self.no_target_factor < 1.0:
             raise ValueError('lost_tracks >= 5, min_inliers >= 5, no_target_factor >= 1')
-        if self.sigma_px <= 0.0 or min(self.min_flow_px, self.min_parallax_px) < 0.0 or self.min_target_area < 0.0:
-            raise ValueError('sigma_px > 0; min_flow_px, min_parallax_px, min_target_area >= 0')
+        if min(self.sigma_px, self.max_track_error) <= 0.0 \
+                or min(self.min_flow_px, self.min_parallax_px) < 0.0 or self.min_target_area < 0.0:
+            raise ValueError('sigma_px, max_track_error > 0; min_flow_px, min_parallax_px, '
+                             'min_target_area >= 0')
 
 
 @dataclass(frozen=True)
@@ -148,6 +153,7 @@ class KeyframeSelector:
         self._pts0: npt.NDArray[np.float32] | None = None  # the same corners in the reference
         self._cams: tuple[CameraModel, CameraModel] | None = None
         self._seeded = 0
+        self._in_loss = False
         self._have_keyframe = False
         self._lost_since_keyframe = False
         self.lost_count = 0
@@ -182,10 +188,11 @@ class KeyframeSelector:
     def _track(self, grey: npt.NDArray[np.uint8]) -> None:
         if self._prev is None or self._pts is None or self._pts0 is None or not len(self._pts):
             return
-        nxt, status, _ = cv2.calcOpticalFlowPyrLK(self._prev, grey, self._pts, None,
+        nxt, status, err = cv2.calcOpticalFlowPyrLK(self._prev, grey, self._pts, None,
                                                   winSize=(15, 15), maxLevel=3)
         h, w = grey.shape
-        ok = status.ravel().astype(bool) & np.all(np.isfinite(nxt.reshape(-1, 2)), axis=1)
+        ok = status.ravel().astype(bool) & np.all(np.isfinite(nxt.reshape(-1, 2)), axis=1) \
+            & (err.ravel() <= self.cfg.max_track_error)
         xy = nxt.reshape(-1, 2)
         ok &= (xy[:, 0] >= 0) & (xy[:, 0] <= w - 1) & (xy[:, 1] >= 0) & (xy[:, 1] <= h - 1)
         self._pts, self._pts0 = nxt[ok], self._pts0[ok]
@@ -228,6 +235,7 @@ class KeyframeSelector:
             return decide(True, 'first')
         if n < self.cfg.lost_tracks:
             return self._lost(grey, decide, blurred)
+        self._in_loss = False
         if blurred:
             return decide(False, 'blurred')
         assert self._pts is not None and self._pts0 is not None
@@ -242,8 +250,9 @@ class KeyframeSelector:
 
     def _lost(self, grey: npt.NDArray[np.uint8], decide: Decide, blurred: bool) -> Decision:
         """Tracking is lost: restart tracking here, without a keyframe (no baseline to check)."""
-        if self._seeded >= self.cfg.lost_tracks:
+        if not self._in_loss:
             self.lost_count += 1  # count each loss once, not every frame of it
+            self._in_loss = True
         self._lost_since_keyframe = True
         if not blurred:
             self._seed(grey)  # a provisional reference: the next keyframe is measured from it

@@ -1,0 +1,113 @@
+"""Keyframe selection on simulator frames with ground truth, and its two-view test."""
+from pathlib import Path
+
+from absscale_ros import bagio, conversions
+from absscale_ros.core import keyframe_geometry, keyframes
+from absscale_ros.tools import bench_keyframes
+import cv2
+from keyframe_scenes import BLURRED_FRAME, write_sequence
+import numpy as np
+import pytest
+
+CFG = keyframes.KeyframeConfig()
+
+
+@pytest.fixture(scope='module')
+def sequence(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict, list, object]:
+    bag = tmp_path_factory.mktemp('kf') / 'scripted.mcap'
+    gt = write_sequence(bag, seed=1)
+    frames, camera = [], None
+    with bagio.open_bag(bag) as reader:
+        for msg in reader.messages():
+            ros = reader.deserialize(msg)
+            if msg.topic.endswith('camera_info'):
+                camera = conversions.camera_info_to_model(ros)
+            else:
+                frames.append((conversions.stamp_to_ns(ros.header.stamp),
+                               conversions.compressed_msg_to_bgr(ros)))
+    return bag, gt, frames, camera
+
+
+def _run(frames: list, camera: object, area: float = 0.0,
+         cfg: keyframes.KeyframeConfig = CFG) -> list[keyframes.Decision]:
+    selector = keyframes.KeyframeSelector(cfg)
+    return [selector.update(stamp, image, camera, area) for stamp, image in frames]
+
+
+def test_keyframes_avoid_pure_rotation_blur_and_stay_in_band(sequence) -> None:
+    bag, gt, _, _ = sequence
+    decisions, _ = bench_keyframes.select(str(bag), CFG)
+    res = bench_keyframes.evaluate(gt, decisions, CFG)
+    assert res['keyframes'] >= 4 and res['keyframe_frames'][0] == 0
+    assert res['keyframes_in_pure_rotation'] == []  # the rotation starts at a keyframe or not
+    assert res['pairs_out_of_band'] == [], res['pairs']
+    assert BLURRED_FRAME not in res['keyframe_frames']
+    assert decisions[BLURRED_FRAME].reason == 'blurred'
+    assert res['keyframe_sharpness_ratio_min'] >= CFG.min_sharpness_ratio
+    # The estimate the selector decides by agrees with the truth within a factor of two.
+    for pair in res['pairs']:
+        assert 0.5 < pair['estimated_ratio'] / pair['gt_ratio'] < 2.0, pair
+    (a, b), = gt['pure_rotation_segments']
+    assert any(d.reason == 'degenerate' for d in decisions[a + 1:b + 1])
+
+
+def test_same_frames_same_keyframes(sequence) -> None:
+    _, _, frames, camera = sequence
+    first = [d.stamp_ns for d in _run(frames, camera) if d.keyframe]
+    assert first == [d.stamp_ns for d in _run(frames, camera) if d.keyframe]
+
+
+def test_target_in_view_is_preferred(sequence) -> None:
+    _, _, frames, camera = sequence
+    with_target = sum(d.keyframe for d in _run(frames, camera, area=0.02))
+    without = sum(d.keyframe for d in _run(frames, camera, area=0.0))
+    assert with_target > without
+
+
+def test_tracking_loss_is_reported_and_never_makes_a_keyframe(sequence) -> None:
+    _, _, frames, camera = sequence
+    selector = keyframes.KeyframeSelector(CFG)
+    rng = np.random.default_rng(3)
+    noise = [(s + 1, (rng.random(img.shape) * 255).astype(np.uint8)) for s, img in frames[:3]]
+    decisions = [selector.update(s, img, camera) for s, img in frames[:5]]
+    decisions += [selector.update(s + 10**9, img, camera) for s, img in noise]
+    assert decisions[0].keyframe and not any(d.keyframe for d in decisions[5:])
+    assert decisions[5].reason == 'lost' and selector.lost_count == 1
+
+
+def _views(R: np.ndarray, t: np.ndarray, rng: np.random.Generator) -> tuple:
+    pts = np.column_stack([rng.uniform(-2, 2, 200), rng.uniform(-1, 1, 200),
+                           rng.uniform(3.0, 6.0, 200)])
+    cam1 = pts @ R.T + t
+    xy0 = pts[:, :2] / pts[:, 2:]
+    xy1 = cam1[:, :2] / cam1[:, 2:] + rng.normal(0, 0.5 / 500, (200, 2))
+    return xy0, xy1, float(np.median(pts[:, 2]))
+
+
+def test_gric_rejects_pure_rotation_and_measures_a_baseline() -> None:
+    rng = np.random.default_rng(0)
+    R = cv2.Rodrigues(np.array([0.02, 0.25, 0.01]))[0]
+    xy0, xy1, _ = _views(R, np.zeros(3), rng)
+    assert keyframe_geometry.analyse(xy0, xy1, 1.0 / 500, 15, 3.0 / 500).degenerate
+    xy0, xy1, depth = _views(R, np.array([-0.4, 0.05, 0.0]), rng)
+    motion = keyframe_geometry.analyse(xy0, xy1, 1.0 / 500, 15, 3.0 / 500)
+    assert not motion.degenerate and motion.gric_e < motion.gric_rot
+    assert motion.baseline_ratio == pytest.approx(0.4 / depth, rel=0.15)
+    xy0, xy1, _ = _views(R, np.array([-0.002, 0.0, 0.0]), rng)  # 2 mm at 4 m: tiny
+    assert keyframe_geometry.analyse(xy0, xy1, 1.0 / 500, 15, 3.0 / 500).degenerate
+
+
+def test_target_area_and_sharpness() -> None:
+    square = np.array([[10, 10], [110, 10], [110, 110], [10, 110], [0, 0], [5, 0], [0, 5.0]])
+    ids = np.array([0, 0, 0, 0, 1, 1, 1])
+    assert keyframes.target_area_fraction(square, ids, 200, 100) == pytest.approx(0.5)
+    img = (np.random.default_rng(0).random((100, 100)) * 255).astype(np.uint8)
+    assert keyframes.sharpness(cv2.GaussianBlur(img, (9, 9), 3)) < keyframes.sharpness(img)
+
+
+@pytest.mark.parametrize('bad', [{'min_baseline_ratio': 0.5}, {'track_width_px': 10},
+                                 {'min_tracked_ratio': 1.0}, {'sigma_px': 0.0},
+                                 {'min_sharpness_ratio': 2.0}])
+def test_bad_config_raises(bad: dict) -> None:
+    with pytest.raises(ValueError):
+        keyframes.KeyframeConfig(**bad)
