@@ -29,6 +29,7 @@ from nav_msgs.msg import Path
 import numpy as np
 import numpy.typing as npt
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2, PointField
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 _NS_PER_S = 1_000_000_000
 _INT32_MIN, _INT32_MAX = -(2 ** 31), 2 ** 31 - 1
@@ -780,3 +781,38 @@ def diagnostic_array(statuses: Sequence[DiagnosticStatus], stamp_ns: int) -> Dia
 def diagnostic_values(status: Any) -> dict[str, str]:
     """Return a DiagnosticStatus's key/value pairs as a dict (the last one wins on repeats)."""
     return {str(pair.key): str(pair.value) for pair in status.values}
+
+
+SCALE_LAYOUT = ('factor', 'sigma', 'ci_low', 'ci_high', 'edges', 'objects')
+
+
+def scale_to_msg(values: Mapping[str, float]) -> Float64MultiArray:
+    """
+    Return the metric scale as a Float64MultiArray labelled ``factor,sigma,ci_low,...``.
+
+    No standard message holds a scalar with its uncertainty; a labelled array keeps
+    ``ros2 topic echo`` readable and needs no custom interface package.
+    """
+    msg = Float64MultiArray()
+    msg.layout.dim = [MultiArrayDimension(label=','.join(SCALE_LAYOUT),
+                                          size=len(SCALE_LAYOUT), stride=len(SCALE_LAYOUT))]
+    msg.data = [float(values[k]) for k in SCALE_LAYOUT]
+    return msg
+
+
+def scale_from_msg(msg: Any) -> dict[str, float]:
+    """Inverse of :func:`scale_to_msg`; MessageError if the labels are not ours."""
+    labels = msg.layout.dim[0].label.split(',') if len(msg.layout.dim) else []
+    if labels != list(SCALE_LAYOUT) or len(msg.data) != len(SCALE_LAYOUT):
+        raise errors.MessageError(f'scale message has labels {labels}, want {SCALE_LAYOUT}')
+    return dict(zip(SCALE_LAYOUT, (float(v) for v in msg.data)))
+
+
+def scaled_cloud_msg(msg: Any, factor: float, stamp_ns: int, frame_id: str) -> PointCloud2:
+    """Return ``msg`` with x, y, z multiplied by ``factor``; every other field kept."""
+    points = cloud_msg_to_array(msg).copy()
+    for axis in ('x', 'y', 'z'):
+        if axis not in (points.dtype.names or ()):
+            raise errors.MessageError(f'cloud has no {axis!r} field to scale')
+        points[axis] = points[axis] * factor
+    return array_to_cloud_msg(points, stamp_ns, frame_id)

@@ -252,3 +252,31 @@ def estimate(objects: list[ObjectVertices], cfg: ScaleConfig) -> ScaleEstimate:
                                  f'{100 * cfg.max_relative_sigma:.2f}% of the factor')
     return ScaleEstimate(factor, sigma, (factor - t_crit * sigma, factor + t_crit * sigma),
                          x, y, factor * x - y, len(measured), rejected)
+
+
+def group_objects(points: FloatArray, object_ids: npt.NDArray[np.int64],
+                  target_types: npt.NDArray[np.int64], n_obs: npt.NDArray[np.int64],
+                  angles_deg: FloatArray, sheet_m: tuple[float, float],
+                  cube_edge_m: float) -> list[ObjectVertices]:
+    """
+    Split labelled target landmarks into one ``ObjectVertices`` per object.
+
+    :param target_types: (N,) 0 sheet, 1 cube (``targets.TARGET_TYPE_CODES``).
+    """
+    objects = []
+    for oid in np.unique(object_ids):
+        sel = object_ids == oid
+        kinds = np.unique(target_types[sel])
+        if len(kinds) != 1 or int(kinds[0]) not in (0, 1):
+            continue  # mixed or unknown kinds under one id: not a target we can measure
+        kind, size = ('sheet', tuple(sheet_m)) if kinds[0] == 0 else ('cube', (cube_edge_m,))
+        objects.append(ObjectVertices(kind, size, points[sel], n_obs[sel], angles_deg[sel],
+                                      int(oid)))
+    return objects
+
+
+def apply_to_positions(poses: FloatArray, factor: float) -> FloatArray:
+    """(N, 7) poses ``x y z qx qy qz qw`` with positions scaled to metres."""
+    scaled = np.array(poses, dtype=np.float64, copy=True)
+    scaled[:, :3] *= factor
+    return scaled

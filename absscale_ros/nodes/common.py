@@ -73,3 +73,19 @@ def run_node(node_cls: type, args: list[str] | None = None) -> None:
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
+
+
+def declare_config(node: Node, cfg: Any, prefix: str = '') -> Any:
+    """
+    Declare one parameter per field of the config dataclass ``cfg`` (its values are the
+    defaults) and return the config built from the parameters, validated by its own checks.
+    """
+    from dataclasses import fields, replace
+    values = {}
+    for f in fields(cfg):
+        default = getattr(cfg, f.name)
+        name = f'{prefix}.{f.name}' if prefix else f.name
+        value = node.declare_parameter(name, list(default) if isinstance(default, tuple)
+                                       else default).value
+        values[f.name] = tuple(value) if isinstance(default, tuple) else value
+    return replace(cfg, **values)

@@ -1,0 +1,132 @@
+"""
+scale: the unscaled reconstruction in metres, from the calibration object's known lengths.
+
+Subscribes ``/absscale/target_points`` (PointCloud2: x, y, z, object_id, vertex_id, n_obs,
+angle_deg, target_type), ``/absscale/sparse_cloud`` and ``/absscale/keyframe_path``. Publishes,
+reliable + TRANSIENT_LOCAL depth 1 so late subscribers get the latest at once:
+``/scaled_cloud`` (every field of the sparse cloud, x y z in metres, frame ``map``),
+``/absscale/scaled_path`` and ``/absscale/scale`` (Float64MultiArray labelled
+``factor,sigma,ci_low,ci_high,edges,objects``). Nothing is published until the evidence
+passes the gate of ``core/scale.py``; ``/diagnostics`` says why not.
+"""
+from typing import Any
+
+from absscale_ros import conversions
+from absscale_ros.core import scale, targets
+from absscale_ros.core.errors import AbsScaleError
+from absscale_ros.nodes import common
+from diagnostic_msgs.msg import DiagnosticArray
+from nav_msgs.msg import Path
+import numpy as np
+from rclpy.node import Node
+from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import Float64MultiArray
+
+
+class ScaleNode(Node):
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__('scale', **kwargs)
+        self._cfg = common.declare_config(self, scale.ScaleConfig())
+        p = {x.name: x.value for x in self.declare_parameters('', [
+            ('sheet', 'letter'), ('sheet_size_m', [0.0, 0.0]), ('cube_edge_m', 0.8),
+            ('frame_id', 'map'), ('min_change', 0.001)])}
+        model = targets.sheet_model(p['sheet'], tuple(p['sheet_size_m'])
+                                    if min(p['sheet_size_m']) > 0 else None)
+        self._sheet_m, self._cube_m = (model.width_m, model.height_m), p['cube_edge_m']
+        self._frame, self._min_change = p['frame_id'], p['min_change']
+        self._cloud_pub = self.create_publisher(PointCloud2, '/scaled_cloud', common.LATCHED)
+        self._path_pub = self.create_publisher(Path, '/absscale/scaled_path', common.LATCHED)
+        self._scale_pub = self.create_publisher(Float64MultiArray, '/absscale/scale',
+                                                common.LATCHED)
+        self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self._ack = common.StepAck(self)
+        self.estimate: scale.ScaleEstimate | None = None
+        self.history: list[dict[str, float]] = []
+        self._cloud: Any = None
+        self._path: Any = None
+        self._why_not = 'no target points yet'
+        for topic, cls, cb in (('/absscale/target_points', PointCloud2, self._on_targets),
+                               ('/absscale/sparse_cloud', PointCloud2, self._on_cloud),
+                               ('/absscale/keyframe_path', Path, self._on_path)):
+            self.create_subscription(cls, topic, lambda m, t=topic, f=cb: f(m, t),
+                                     common.RELIABLE)
+
+    def _on_targets(self, msg: PointCloud2, topic: str) -> None:
+        pts = conversions.cloud_msg_to_array(msg)
+        xyz = np.stack([pts[a] for a in 'xyz'], axis=1).astype(np.float64) if len(pts) else \
+            np.zeros((0, 3))
+        objects = scale.group_objects(xyz, *(np.asarray(pts[f]) for f in (
+            'object_id', 'target_type', 'n_obs', 'angle_deg')), self._sheet_m, self._cube_m) \
+            if len(pts) else []
+        outputs: list[str] = []
+        try:
+            est = scale.estimate(objects, self._cfg)
+        except AbsScaleError as err:
+            self._why_not = str(err)
+            self.get_logger().info(f'no metric scale yet: {err}', throttle_duration_sec=10.0)
+        else:
+            changed = self.estimate is None or \
+                abs(est.factor / self.estimate.factor - 1.0) > self._min_change
+            self.estimate = est
+            self.history.append({'stamp_ns': conversions.stamp_to_ns(msg.header.stamp),
+                                 'factor': est.factor, 'sigma': est.sigma})
+            if changed:
+                outputs = self._publish_all(msg.header.stamp)
+        self._diagnose(msg.header.stamp)
+        self._ack.ack(msg.header.stamp, topic, outputs)
+
+    def _on_cloud(self, msg: PointCloud2, topic: str) -> None:
+        self._cloud = msg
+        outputs = self._publish_all(msg.header.stamp) if self.estimate else []
+        self._ack.ack(msg.header.stamp, topic, outputs)
+
+    def _on_path(self, msg: Path, topic: str) -> None:
+        self._path = msg
+        outputs = self._publish_all(msg.header.stamp) if self.estimate else []
+        self._ack.ack(msg.header.stamp, topic, outputs)
+
+    def _publish_all(self, stamp: Any) -> list[str]:
+        est = self.estimate
+        assert est is not None
+        stamp_ns = conversions.stamp_to_ns(stamp)
+        self._scale_pub.publish(conversions.scale_to_msg({
+            'factor': est.factor, 'sigma': est.sigma, 'ci_low': est.interval[0],
+            'ci_high': est.interval[1], 'edges': len(est.measured), 'objects': est.objects_used}))
+        outputs = ['/absscale/scale']
+        if self._cloud is not None:
+            self._cloud_pub.publish(conversions.scaled_cloud_msg(self._cloud, est.factor,
+                                                                 stamp_ns, self._frame))
+            outputs.append('/scaled_cloud')
+        if self._path is not None:
+            poses, stamps = conversions.path_msg_to_poses(self._path)
+            self._path_pub.publish(conversions.poses_to_path_msg(
+                scale.apply_to_positions(poses, est.factor), stamps, self._frame, stamp_ns))
+            outputs.append('/absscale/scaled_path')
+        return outputs
+
+    def _diagnose(self, stamp: Any) -> None:
+        est = self.estimate
+        values: dict[str, object] = {'observable': est is not None}
+        if est is not None:
+            values.update(factor=est.factor, sigma=est.sigma, edges=len(est.measured),
+                          residual_rms_mm=1000 * float(np.sqrt(np.mean(est.residuals_m ** 2))),
+                          rejected='; '.join(est.rejected))
+        status = conversions.diagnostic_status(
+            'scale', 'ok' if est else 'warn',
+            f'{est.factor:.6g} m/unit +/- {est.sigma:.2g}' if est else self._why_not, values)
+        self._diag_pub.publish(conversions.diagnostic_array([status],
+                                                            conversions.stamp_to_ns(stamp)))
+
+    def report(self) -> dict[str, Any]:
+        est = self.estimate
+        if est is None:
+            return {'observable': False, 'reason': self._why_not}
+        return {'observable': True, 'factor': est.factor, 'sigma': est.sigma,
+                'interval': list(est.interval), 'edges': len(est.measured),
+                'objects': est.objects_used, 'rejected': est.rejected,
+                'residuals_m': est.residuals_m.tolist(), 'history': self.history}
+
+
+def main(args: list[str] | None = None) -> None:
+    common.run_node(ScaleNode, args)
