@@ -1,0 +1,134 @@
+"""frame_ingest and keyframe_selector as real rclpy nodes exchanging real messages."""
+from pathlib import Path
+
+from absscale_ros import conversions
+from absscale_ros.core import keyframes, replay
+from absscale_ros.core.types import CameraModel
+from absscale_ros.nodes import common
+from absscale_ros.nodes.bag_replay import BagReplayNode
+from absscale_ros.nodes.frame_ingest import FrameIngestNode
+from absscale_ros.nodes.keyframe_selector import KeyframeSelectorNode
+from absscale_ros.tools import bench_keyframes
+from keyframe_scenes import write_sequence
+import numpy as np
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from ros_helpers import spin_until
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from std_msgs.msg import Header
+
+
+class Probe(Node):
+    """Publishes camera input and records what the nodes publish and acknowledge."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__('probe', **kwargs)
+        self.got: dict[str, list] = {}
+        self.acks: list[replay.Ack] = []
+        for topic, cls in (('/absscale/frames', Image), ('/absscale/camera_info', CameraInfo),
+                           ('/absscale/keyframes', Image),
+                           ('/absscale/keyframe_vertices', PointCloud2)):
+            self.got[topic] = []
+            self.create_subscription(cls, topic, self.got[topic].append, common.RELIABLE)
+        self.create_subscription(Header, common.ACK_TOPIC, lambda m: self.acks.append(
+            replay.Ack.decode(m.frame_id, conversions.stamp_to_ns(m.stamp))), common.RELIABLE)
+        self.image = self.create_publisher(Image, '/camera/image_raw', common.RELIABLE)
+        self.info = self.create_publisher(CameraInfo, '/camera/camera_info', common.RELIABLE)
+        self.frames = self.create_publisher(Image, '/absscale/frames', common.RELIABLE)
+        self.vertices = self.create_publisher(PointCloud2, '/absscale/vertices', common.RELIABLE)
+
+
+def _stamps(msgs: list) -> list[int]:
+    return [conversions.stamp_to_ns(m.header.stamp) for m in msgs]
+
+
+def _executor(context, *nodes: Node) -> SingleThreadedExecutor:
+    executor = SingleThreadedExecutor(context=context)
+    for node in nodes:
+        executor.add_node(node)
+    return executor
+
+
+def test_step_replay_through_both_nodes_matches_the_core(context, tmp_path: Path) -> None:
+    bag = tmp_path / 'scripted.mcap'
+    write_sequence(bag, seed=2)
+    ingest = FrameIngestNode(context=context)
+    selector = KeyframeSelectorNode(context=context, parameter_overrides=[
+        Parameter('use_vertices', value=False)])
+    probe = Probe(context=context)
+    bag_replay = BagReplayNode(context=context, parameter_overrides=[
+        Parameter('bag', value=str(bag)), Parameter('mode', value='step'),
+        Parameter('expect_nodes', value='frame_ingest,keyframe_selector')])
+    executor = _executor(context, ingest, selector, probe, bag_replay)
+    assert spin_until(executor, lambda: bag_replay.finished
+                      and selector.report()['frames'] == 60, timeout_s=40.0)
+    spin_until(executor, lambda: len(probe.got['/absscale/keyframe_vertices'])
+               == len(selector.keyframe_stamps_ns), timeout_s=2.0)
+    decisions, _ = bench_keyframes.select(str(bag), keyframes.KeyframeConfig())
+    expected = [d.stamp_ns for d in decisions if d.keyframe]
+    assert len(expected) >= 4
+    assert selector.keyframe_stamps_ns == expected
+    assert _stamps(probe.got['/absscale/keyframes']) == expected
+    assert _stamps(probe.got['/absscale/keyframe_vertices']) == expected
+    assert bag_replay.timeouts == 0 and bag_replay.steps == 60
+    assert ingest.report()['frames_decoded'] == 60 and ingest.report()['frames_dropped'] == 0
+
+
+def _model(w: int, h: int) -> CameraModel:
+    return CameraModel(w, h, np.array([[0.9 * w, 0, w / 2], [0, 0.9 * w, h / 2], [0, 0, 1]]))
+
+
+def _image(w: int, h: int, stamp: int) -> Image:
+    pixels = (np.random.default_rng(stamp).random((h, w, 3)) * 255).astype(np.uint8)
+    return conversions.array_to_image_msg(pixels, 'bgr8', stamp, 'cam')
+
+
+def test_ingest_waits_for_camera_info_resizes_and_drops_mismatches(context) -> None:
+    ingest = FrameIngestNode(context=context, parameter_overrides=[
+        Parameter('image_topic', value='/camera/image_raw'), Parameter('compressed', value=False),
+        Parameter('max_width_px', value=320), Parameter('info_wait_s', value=0.3)])
+    probe = Probe(context=context)
+    executor = _executor(context, ingest, probe)
+    assert spin_until(executor, lambda: probe.image.get_subscription_count() == 1)
+    probe.image.publish(_image(640, 360, 1))  # before any camera_info: held, not dropped
+    spin_until(executor, lambda: False, timeout_s=0.1)
+    assert probe.got['/absscale/frames'] == [] and ingest.report()['waiting'] == 1
+    probe.info.publish(conversions.camera_model_to_info_msg(_model(640, 360), 1, 'cam'))
+    assert spin_until(executor, lambda: len(probe.got['/absscale/frames']) == 1
+                      and len(probe.got['/absscale/camera_info']) == 1)
+    frame, info = probe.got['/absscale/frames'][0], probe.got['/absscale/camera_info'][0]
+    assert (frame.width, frame.height, frame.encoding) == (320, 180, 'bgr8')
+    cam = conversions.camera_info_to_model(info)
+    np.testing.assert_allclose(cam.K, _model(640, 360).resized(320, 180).K)
+    probe.image.publish(_image(800, 600, 2))  # no camera_info of this size ever comes
+    assert spin_until(executor, lambda: ingest.report()['frames_dropped'] == 1)
+    assert spin_until(executor, lambda: len([a for a in probe.acks
+                                             if a.node == 'frame_ingest']) == 2)
+    acks = [a for a in probe.acks if a.node == 'frame_ingest']
+    assert [(a.stamp_ns, a.outputs) for a in acks] == [(1, ('/absscale/frames',)), (2, ())]
+    probe.info.publish(conversions.camera_model_to_info_msg(_model(800, 600), 3, 'cam'))
+    probe.image.publish(_image(800, 600, 3))  # a resolution change re-initialises
+    assert spin_until(executor, lambda: len(probe.got['/absscale/frames']) == 2)
+    assert probe.got['/absscale/frames'][1].width == 320 and ingest.report()['reinitialised'] == 2
+
+
+def test_selector_pairs_frames_with_vertices_by_stamp(context) -> None:
+    selector = KeyframeSelectorNode(context=context)
+    probe = Probe(context=context)
+    executor = _executor(context, selector, probe)
+    assert spin_until(executor, lambda: probe.vertices.get_subscription_count() == 1
+                      and probe.frames.get_subscription_count() == 2)
+    empty = np.zeros(0, [('u', '<f4'), ('v', '<f4'), ('object_id', '<i4')])
+    probe.frames.publish(_image(320, 240, 10))
+    probe.vertices.publish(conversions.array_to_cloud_msg(empty, 10, 'cam'))
+    probe.vertices.publish(conversions.array_to_cloud_msg(empty, 11, 'cam'))  # before its frame
+    probe.frames.publish(_image(320, 240, 11))
+    assert spin_until(executor, lambda: selector.report()['frames'] == 2)
+    assert spin_until(executor, lambda: len(probe.acks) == 4)
+    assert sorted((a.stamp_ns, a.input_topic) for a in probe.acks) == [
+        (10, '/absscale/frames'), (10, '/absscale/vertices'),
+        (11, '/absscale/frames'), (11, '/absscale/vertices')]
+    assert selector.keyframe_stamps_ns == [10]  # the first sharp frame starts the map
+    assert spin_until(executor, lambda: _stamps(probe.got['/absscale/keyframe_vertices']) == [10])
+    assert _stamps(probe.got['/absscale/keyframes']) == [10]
