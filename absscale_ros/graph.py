@@ -72,9 +72,12 @@ def run_graph(bag: str, config: str, replay_overrides: dict[str, Any] | None = N
                domain_id=1 + os.getpid() % 100 if domain_id is None else domain_id)
     nodes: dict[str, Node] = {}
     try:
-        for name, cls in available_nodes():
-            nodes[name] = cls(context=context,
-                              parameter_overrides=_overrides(params.node_params(sections, name)))
+        found = available_nodes()
+        for name, cls in found:
+            values = params.node_params(sections, name)
+            if name == 'keyframe_selector' and 'vertex_detector' not in dict(found):
+                values['use_vertices'] = False  # no detector: frames alone decide
+            nodes[name] = cls(context=context, parameter_overrides=_overrides(values))
         monitor = GraphMonitorNode(context=context)
         replay_params = params.node_params(sections, 'bag_replay')
         replay_params.update(bag=str(bag), expect_nodes=','.join(nodes),
