@@ -8,14 +8,15 @@ is kept unchanged). New landmarks are triangulated with the matched keyframes, a
 ``SegmentGraph`` (GTSAM) refines everything.
 """
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
-from absscale_ros.core import errors, sfm_graph, sfm_map, twoview
+from absscale_ros.core import errors, sfm_graph, sfm_map, sfm_vertices, twoview
 from absscale_ros.core import features as feat
+from absscale_ros.core import vertex_matching as vm
 from absscale_ros.core.types import CameraModel
 
 FloatArray = npt.NDArray[np.float64]
@@ -29,6 +30,7 @@ class SfmConfig:
     feature_cfg: feat.FeatureConfig = field(default_factory=feat.FeatureConfig)
     twoview_cfg: twoview.TwoViewConfig = field(default_factory=twoview.TwoViewConfig)
     graph_cfg: sfm_graph.GraphConfig = field(default_factory=sfm_graph.GraphConfig)
+    vertex_cfg: vm.VertexMatchConfig = field(default_factory=vm.VertexMatchConfig)
     match_window: int = 3  # match each new keyframe against this many previous ones
     relocalise_window: int = 30  # keyframes tried when the recent ones do not register it
     min_pnp_inliers: int = 30
@@ -82,11 +84,21 @@ class IncrementalSfm:
     def current(self) -> Segment:
         return self.segments[-1]
 
-    def add_keyframe(self, stamp_ns: int, image_bgr: npt.NDArray[np.uint8]) -> UpdateResult:
-        """Process one keyframe image (H, W, 3) uint8 BGR; see ``UpdateResult``."""
+    def add_keyframe(self, stamp_ns: int, image_bgr: npt.NDArray[np.uint8],
+                     vertices: vm.Vertices | None = None) -> UpdateResult:
+        """
+        Process one keyframe; see ``UpdateResult``.
+
+        :param image_bgr: (H, W, 3) uint8 image.
+        :param vertices: its detected target vertices, ``points_px`` distorted (as detected).
+        """
         f = feat.detect(image_bgr, self.camera, self.cfg.feature_cfg)
         kf = sfm_map.MapKeyframe(self._next_kf, stamp_ns, np.eye(4), f,
                                  np.full(len(f.points_px), -1, np.int64))
+        if vertices is not None and len(vertices.object_ids):
+            undistorted = replace(vertices,
+                                  points_px=feat.undistort_px(self.camera, vertices.points_px))
+            kf.vertices = sfm_vertices.make(undistorted, image_bgr, self.cfg.vertex_cfg)
         self._next_kf += 1
         seg = self.current
         if not seg.initialised:
@@ -127,6 +139,8 @@ class IncrementalSfm:
             seg.map.keyframes[first.kf_id] = first
             seg.map.keyframes[kf.kf_id] = kf
             self._add_points(seg.map, first, kf, pairs[ok], pts[ok])
+            sfm_vertices.link(seg.map, self.K, kf, [first], self.cfg.twoview_cfg,
+                              self.cfg.vertex_cfg)
             seg.pending.clear()
             seg.graph.update(seg.map)
             seg.graph.batch(seg.map, self._progress)
@@ -158,6 +172,8 @@ class IncrementalSfm:
                     seg.map.observe(lm_id, kf.kf_id, kf.features.points_px[j], j)
                 added = sum(self._triangulate(seg.map, n, kf, matches[n.kf_id])
                             for n in neighbours[:self.cfg.match_window])
+                sfm_vertices.link(seg.map, self.K, kf, neighbours[:self.cfg.match_window],
+                                  self.cfg.twoview_cfg, self.cfg.vertex_cfg)
                 seg.graph.update(seg.map)
                 return status, f'{len(inliers)} PnP inliers, {added} new landmarks'
         self.segments.append(self._new_segment())

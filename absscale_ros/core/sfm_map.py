@@ -1,5 +1,6 @@
 """The state of one SfM map segment: keyframe poses, landmarks and their observations."""
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -17,6 +18,7 @@ class MapKeyframe:
 
     :param T_world_cam: (4, 4) pose, SfM units (camera to map frame).
     :param landmark_of: (N,) landmark id of each keypoint, -1 for none.
+    :param vertices: ``sfm_vertices.KeyframeVertices`` of its detected target vertices, or None.
     """
 
     kf_id: int
@@ -24,6 +26,7 @@ class MapKeyframe:
     T_world_cam: FloatArray
     features: feat.Features
     landmark_of: npt.NDArray[np.int64]
+    vertices: Any = None
 
 
 @dataclass

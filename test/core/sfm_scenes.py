@@ -89,3 +89,29 @@ def make_sequence(scene_name: str, seed: int, count: int = 12, width: int = 640,
         px[~inside] = np.nan
         vertices.append(px)
     return Sequence(camera, images, poses, target.vertices_world_m.copy(), vertices, target.kind)
+
+
+def detections(seq: Sequence, k: int, rng: np.random.Generator) -> tuple[object, FloatArray]:
+    """
+    Stand-in for the vertex detector on keyframe ``k``: the visible ground-truth vertices, with
+    the detector's per-frame numbering (a sheet's clockwise order from a random corner, the cube's
+    vertices in random order), so identities across keyframes must come from matching.
+
+    :returns: ``vertex_matching.Vertices`` (distorted px) and (V,) true vertex index of each.
+    """
+    from absscale_ros.core import vertex_matching as vm
+    px = seq.vertices_px[k]
+    visible = np.flatnonzero(np.all(np.isfinite(px), axis=1))
+    if seq.kind == 'cube':  # the vertex furthest from the camera is hidden by the cube itself
+        dist_m = np.linalg.norm(seq.vertices_world_m - seq.T_world_cams[k, :3, 3], axis=1)
+        visible = visible[visible != int(np.argmax(dist_m))]
+    if seq.kind == 'sheet':
+        if len(visible) < 4:
+            visible = visible[:0]
+        order = np.roll(np.arange(len(visible)), int(rng.integers(4))) if len(visible) else visible
+    else:
+        order = rng.permutation(len(visible))
+    true_ids = visible[order]
+    n = len(true_ids)
+    return (vm.Vertices(np.zeros(n, np.int64), np.arange(n, dtype=np.int64), px[true_ids],
+                        (seq.kind,) * n), true_ids)

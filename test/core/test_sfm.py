@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from absscale_ros.core import align, errors, sfm
+from absscale_ros.core import align, errors, sfm, sfm_vertices
 
 sys.path.insert(0, str(Path(__file__).parent))
 import sfm_scenes  # noqa: E402
@@ -55,3 +55,42 @@ def test_umeyama_recovers_a_similarity() -> None:
     assert np.allclose(R_hat, R, atol=1e-9) and np.allclose(t_hat, [1.0, -2.0, 0.5], atol=1e-9)
     with pytest.raises(errors.DegenerateGeometryError):
         align.umeyama(src[:2], dst[:2])
+
+
+def _extent_m(seq: sfm_scenes.Sequence) -> float:
+    """Scene extent: bounding-box diagonal of the camera centres and the target's vertices."""
+    pts = np.vstack([seq.T_world_cams[:, :3, 3], seq.vertices_world_m])
+    return float(np.linalg.norm(pts.max(0) - pts.min(0)))
+
+
+@pytest.mark.parametrize('scene, seed', [('indoor_paper', 1), ('outdoor_cube', 2)])
+def test_vertex_landmarks_keep_ids_and_are_accurate(scene: str, seed: int) -> None:
+    # "Detected" vertices are the ground-truth 2D vertices + 0.3 px noise, renumbered per frame
+    # (the vertex detector is not wired yet); matching must recover the identities.
+    seq = sfm_scenes.make_sequence(scene, seed, count=10)
+    rng = np.random.default_rng(5)
+    engine = sfm.IncrementalSfm(seq.camera, sfm.SfmConfig(), np.random.default_rng(7))
+    truth = []
+    for k, img in enumerate(seq.images_bgr):
+        vertices, true_ids = sfm_scenes.detections(seq, k, rng)
+        truth.append(true_ids)
+        engine.add_keyframe(k, img, vertices)
+    m = engine.current.map
+    ids, T = m.poses()
+    s, R, t = align.umeyama(T[:, :3, 3], seq.T_world_cams[ids, :3, 3])
+    labelled = [(lm_id, lm) for lm_id, lm in m.landmarks.items() if lm.label is not None]
+    assert len(labelled) >= 3
+    errors_m = []
+    for lm_id, lm in labelled:
+        seen_as = {int(truth[kf][np.flatnonzero(m.keyframes[kf].vertices.landmark_of == lm_id)[0]])
+                   for kf in lm.obs_px}
+        assert len(seen_as) == 1  # every observation is the same physical vertex
+        p = align.apply(s, R, t, lm.point_world[None])[0]
+        errors_m.append(np.linalg.norm(p - seq.vertices_world_m[seen_as.pop()]))
+    # Measured at 640 px, 10 keyframes, 0.3 px vertex noise: median 0.3 % (indoor) and 0.27 %
+    # (outdoor) of the scene extent, worst 1 % (a vertex seen by 2 close keyframes). NOT yet the
+    # issue's 0.1 %: that figure is for the bench (full resolution, more keyframes).
+    assert np.median(errors_m) <= 0.004 * _extent_m(seq)
+    assert max(errors_m) <= 0.015 * _extent_m(seq)
+    points, rows = sfm_vertices.targets(m)
+    assert len(points) == len(labelled) and np.all(rows[:, 2] >= 2)

@@ -1,0 +1,107 @@
+"""
+Target vertices as labelled landmarks of an SfM map segment (paper Steps 2-3).
+
+After a keyframe is registered its detected vertices are matched (``vertex_matching``) with
+those of the previous keyframes; a match extends a vertex landmark or, once two views see the
+vertex with enough parallax, creates one labelled (object_id, vertex_id) from the first view.
+"""
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from absscale_ros.core import sfm_map, twoview
+from absscale_ros.core import vertex_matching as vm
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass
+class KeyframeVertices:
+    """Vertices of one keyframe, their colour windows and the landmark each became (-1: none)."""
+
+    vertices: vm.Vertices
+    windows: list[FloatArray | None]
+    landmark_of: npt.NDArray[np.int64]
+
+
+def make(vertices: vm.Vertices, image_bgr: npt.NDArray[np.uint8],
+         cfg: vm.VertexMatchConfig) -> KeyframeVertices:
+    return KeyframeVertices(vertices, vm.windows(image_bgr, vertices.points_px, cfg),
+                            np.full(len(vertices.object_ids), -1, np.int64))
+
+
+def _pairs(a: KeyframeVertices, b: KeyframeVertices, F: FloatArray,
+           cfg: vm.VertexMatchConfig) -> list[tuple[int, int]]:
+    """Matches per target kind; objects are matched by id only if the detector keeps ids."""
+    out = []
+    for kind in ('sheet', 'cube'):
+        ia = [i for i, k in enumerate(a.vertices.kinds) if k == kind]
+        ib = [j for j, k in enumerate(b.vertices.kinds) if k == kind]
+        if not ia or not ib:
+            continue
+        for obj in set(a.vertices.object_ids[ia].tolist()):
+            sa = [i for i in ia if a.vertices.object_ids[i] == obj]
+            sb = [j for j in ib if b.vertices.object_ids[j] == obj]
+            pa, pb = a.vertices.points_px[sa], b.vertices.points_px[sb]
+            if kind == 'sheet':
+                local = vm.match_sheet(pa, pb, F, cfg)
+            else:
+                local = vm.match_cube(pa, pb, [a.windows[i] for i in sa],
+                                      [b.windows[j] for j in sb], F, cfg)
+            out += [(sa[i], sb[j]) for i, j in local]
+    return out
+
+
+def link(m: sfm_map.SfmMap, K: FloatArray, new: sfm_map.MapKeyframe,
+         older: list[sfm_map.MapKeyframe], tv_cfg: twoview.TwoViewConfig,
+         cfg: vm.VertexMatchConfig) -> int:
+    """
+    Match ``new``'s vertices with those of ``older`` keyframes; add observations and landmarks.
+
+    :returns: number of vertex landmarks created.
+    """
+    b = new.vertices
+    if b is None:
+        return 0
+    created = 0
+    for old in older:
+        a = old.vertices
+        if a is None:
+            continue
+        F = vm.fundamental(K, old.T_world_cam, new.T_world_cam)
+        for ids in (a.landmark_of, b.landmark_of):  # landmarks culled by a batch adjustment
+            ids[[int(x) not in m.landmarks for x in ids]] = -1
+        for i, j in _pairs(a, b, F, cfg):
+            if b.landmark_of[j] >= 0:
+                continue
+            if a.landmark_of[i] >= 0:
+                b.landmark_of[j] = a.landmark_of[i]
+                m.observe(int(a.landmark_of[i]), new.kf_id, b.vertices.points_px[j])
+                continue
+            pts, ok = twoview.triangulate(K, old.T_world_cam, new.T_world_cam,
+                                          a.vertices.points_px[i:i + 1],
+                                          b.vertices.points_px[j:j + 1], tv_cfg)
+            if not ok[0]:
+                continue
+            label = (int(a.vertices.object_ids[i]), int(a.vertices.vertex_ids[i]))
+            lm_id = m.add_landmark(pts[0], (255, 255, 255), label)
+            m.observe(lm_id, old.kf_id, a.vertices.points_px[i])
+            m.observe(lm_id, new.kf_id, b.vertices.points_px[j])
+            a.landmark_of[i] = b.landmark_of[j] = lm_id
+            created += 1
+    return created
+
+
+def targets(m: sfm_map.SfmMap) -> tuple[FloatArray, npt.NDArray[np.int64]]:
+    """
+    Vertex landmarks, sorted by object and vertex id.
+
+    :returns: (N, 3) positions (SfM units) and (N, 3) int64 rows of object_id, vertex_id and
+        observation count.
+    """
+    rows = sorted(((lm.label, lm.point_world, len(lm.obs_px)) for lm in m.landmarks.values()
+                   if lm.label is not None), key=lambda r: r[0])
+    pts = np.array([r[1] for r in rows], np.float64).reshape(-1, 3)
+    ids = np.array([[r[0][0], r[0][1], r[2]] for r in rows], np.int64).reshape(-1, 3)
+    return pts, ids
