@@ -1,0 +1,125 @@
+"""
+Camera effects on a rendered frame: motion blur, auto-exposure drift, white balance,
+vignetting, sensor noise. The shader's output is display-encoded (gamma 2): gains are applied
+as the square root of the linear gain, which is exact for a power law.
+"""
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from absscale_ros.core.types import CameraModel
+from absscale_ros.sim import camera as simcam
+from absscale_ros.sim.render import BLOCK, F32, FloatArray
+
+MAX_BLUR_SAMPLES = 6
+BLUR_SPACING_PX = 2.0  # sub-exposure samples at most this far apart along a streak
+NOISE_MARGIN = 64  # noise bank border: each frame reads the bank at a random offset
+
+
+@dataclass(frozen=True)
+class EffectsConfig:
+    """Per-scene camera behaviour."""
+
+    exposure_s: float = 0.008  # shutter time: sets the motion-blur length
+    brightness_target: float = 118.0  # auto-exposure aims the mean display value here
+    read_noise_dn: float = 1.2  # noise std at black, 8-bit display units
+    shot_noise: float = 0.035  # noise variance per display unit of signal
+    vignetting: float = 0.22  # linear fall-off at the image corners
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.exposure_s < 0.05:
+            raise ValueError(f'exposure_s must be in (0, 0.05) s, got {self.exposure_s}')
+        if not 0.0 <= self.vignetting < 0.8:
+            raise ValueError(f'vignetting must be in [0, 0.8), got {self.vignetting}')
+
+
+class CameraEffects:
+    """Stateful (auto-exposure) effects for one video; deterministic given the rng."""
+
+    def __init__(self, camera: CameraModel, cfg: EffectsConfig, rng: np.random.Generator) -> None:
+        self._cfg = cfg
+        self._rng = rng
+        self._camera = camera
+        h, w = camera.height, camera.width
+        v, u = np.mgrid[0:h, 0:w].astype(np.float32)
+        r2 = ((u - camera.K[0, 2]) ** 2 + (v - camera.K[1, 2]) ** 2) / (0.25 * (w * w + h * h))
+        # Linear fall-off ~ cos^4 of the field angle, as a smooth radial polynomial.
+        vignette = np.sqrt(1.0 - cfg.vignetting * r2 * (0.7 + 0.3 * r2)).astype(np.float32)
+        self._vignette = cv2.merge([vignette] * 3)
+        # Gaussian noise is costly to draw per frame: draw two large fields once and read each
+        # frame at a random offset (sample independent across a frame and between frames).
+        m = NOISE_MARGIN
+        self._noise_bank = rng.standard_normal((2, h + m, w + m, 3), dtype=np.float32)
+        gh, gw = h // BLOCK + 1, w // BLOCK + 1
+        self._grid_px = simcam.pixel_grid(w, h, BLOCK).reshape(gh, gw, 2).astype(np.float32)
+        self._u, self._v = u, v
+        self._gain = 1.0
+        self._drift = rng.uniform(0.0, 2.0 * np.pi, size=5)
+        self._drift_hz = rng.uniform(0.05, 0.2, size=5)
+
+    def motion_blur(self, colour: F32, grid_points_world_m: F32, T_start: FloatArray,
+                    T_end: FloatArray) -> tuple[F32, float]:
+        """
+        Average the image along each pixel's motion during the exposure.
+
+        :param grid_points_world_m: (Hg, Wg, 3) surface points behind the 4-px grid.
+        :param T_start: T_world_cam at the start of the exposure; ``T_end`` at its end.
+        :returns: blurred image and the longest streak, px.
+        """
+        ends = [self._project(grid_points_world_m, T) - self._grid_px for T in (T_start, T_end)]
+        streak = ends[1] - ends[0]
+        finite = np.isfinite(streak).all(axis=2)
+        length = float(np.max(np.linalg.norm(streak[finite], axis=1))) if finite.any() else 0.0
+        if length < 0.35:
+            return colour, length
+        n = int(min(MAX_BLUR_SAMPLES, np.ceil(length / BLUR_SPACING_PX) + 1))
+        h, w = self._camera.height, self._camera.width
+        flows = [cv2.resize(np.nan_to_num(e[:-1, :-1]), (w, h), interpolation=cv2.INTER_LINEAR)
+                 for e in ends]
+        # A point seen at p mid-exposure is at p + f(s) at sub-time s, so at that time pixel p
+        # shows what the mid-exposure image has at p - f(s); f runs linearly start -> end.
+        base = [self._u - flows[0][..., 0], self._v - flows[0][..., 1]]
+        step = [(flows[0][..., c] - flows[1][..., c]) / np.float32(n - 1) for c in range(2)]
+        acc = np.zeros_like(colour)
+        for k in range(n):
+            mx, my = (cv2.scaleAdd(step[c], float(k), base[c]) for c in range(2))
+            acc += cv2.remap(colour, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+        return acc * np.float32(1.0 / n), length
+
+    def _project(self, points_world_m: F32, T_world_cam: FloatArray) -> F32:
+        shape = points_world_m.shape
+        R, t = T_world_cam[:3, :3], T_world_cam[:3, 3]
+        pts_cam = (points_world_m.reshape(-1, 3).astype(np.float64) - t) @ R
+        return simcam.project(self._camera, pts_cam).astype(np.float32).reshape(*shape[:2], 2)
+
+    def expose(self, colour: F32, t_s: float) -> tuple[npt.NDArray[np.uint8], float]:
+        """
+        Auto-exposure with lag and drift, white balance drift, vignetting, noise -> BGR uint8.
+
+        :param colour: (H, W, 3) RGB display-encoded, 8-bit scale.
+        :returns: (H, W, 3) uint8 BGR image and the exposure gain used (linear).
+        """
+        cfg = self._cfg
+        mean = float(cv2.mean(colour[::8, ::8])[:3][1]) + 1e-3
+        # Display value ~ sqrt(gain * radiance): this gain would hit the target; the camera
+        # moves only 30 % of the way there (in log) per frame, so exposure lags.
+        wanted = (cfg.brightness_target / mean) ** 2
+        self._gain *= (wanted / self._gain) ** 0.3
+        s = np.sin(self._drift + 2.0 * np.pi * self._drift_hz * t_s)
+        gain = self._gain * np.exp(0.10 * s[0])  # metering jitter
+        wb = np.array([1.0 + 0.04 * s[1], 1.0 + 0.015 * s[2], 1.0 + 0.05 * s[3]])
+        scale = np.sqrt(gain * wb)
+        img = cv2.multiply(colour, self._vignette)
+        img = cv2.multiply(img, (float(scale[0]), float(scale[1]), float(scale[2]), 0.0))
+        return cv2.cvtColor(self._noise(img), cv2.COLOR_RGB2BGR), float(gain)
+
+    def _noise(self, img: F32) -> npt.NDArray[np.uint8]:
+        """Shot + read noise: std sqrt(shot * value + read^2), in display units."""
+        h, w = img.shape[:2]
+        k, dy, dx = (int(v) for v in self._rng.integers(0, [2, NOISE_MARGIN, NOISE_MARGIN]))
+        unit = self._noise_bank[k, dy:dy + h, dx:dx + w]
+        var = cv2.add(cv2.multiply(img, self._cfg.shot_noise), self._cfg.read_noise_dn ** 2)
+        noise = cv2.multiply(unit, cv2.sqrt(cv2.max(var, 0.0)))
+        return cv2.add(img, noise, dtype=cv2.CV_8U)
