@@ -5,8 +5,8 @@ After Rashidi et al. 2013 ("Optimized selection of key frames for monocular vide
 surveying"): a blurred frame is never chosen (variance of the Laplacian against a running
 median); corners detected in the last keyframe are tracked frame to frame (pyramidal KLT);
 a frame becomes a keyframe when the tracked ratio falls or the baseline grows past thresholds,
-provided two-view geometry shows real translation (GRIC, see ``keyframe_geometry``), so pure rotations
-and tiny baselines never make keyframes. Frames in which the calibration target is seen large
+provided two-view geometry shows real translation (GRIC, see ``keyframe_geometry``), so pure
+rotations and tiny baselines never make keyframes. Frames in which the calibration target is seen large
 enough are preferred. Tracking runs on a grey image downscaled to ``track_width_px``.
 """
 from collections import deque
@@ -50,6 +50,9 @@ class KeyframeConfig:
     :param min_target_area: target area / image area for a frame to count as showing it.
     :param min_parallax_px: median parallax left after removing the best pure rotation
         (tracking scale) below which the motion counts as degenerate.
+    :param min_step_parallax_px: parallax between the previous frame and a keyframe candidate
+        that no rotation explains, px at tracking scale; below it the camera is turning on the
+        spot (or standing still) and the candidate waits.
     :param sigma_px: corner position noise at tracking scale, px (GRIC and RANSAC).
     :param min_inliers: two-view inliers needed to trust the geometry.
     """
@@ -69,6 +72,7 @@ class KeyframeConfig:
     no_target_factor: float = 1.5
     min_target_area: float = 0.005
     min_parallax_px: float = 3.0
+    min_step_parallax_px: float = 0.3
     sigma_px: float = 1.0
     min_inliers: int = 15
 
@@ -83,10 +87,11 @@ class KeyframeConfig:
                              '<= max_baseline_ratio')
         if self.lost_tracks < 5 or self.min_inliers < 5 or self.no_target_factor < 1.0:
             raise ValueError('lost_tracks >= 5, min_inliers >= 5, no_target_factor >= 1')
-        if min(self.sigma_px, self.max_track_error) <= 0.0 \
-                or min(self.min_flow_px, self.min_parallax_px) < 0.0 or self.min_target_area < 0.0:
+        if min(self.sigma_px, self.max_track_error) <= 0.0 or min(
+                self.min_flow_px, self.min_parallax_px, self.min_step_parallax_px,
+                self.min_target_area) < 0.0:
             raise ValueError('sigma_px, max_track_error > 0; min_flow_px, min_parallax_px, '
-                             'min_target_area >= 0')
+                             'min_step_parallax_px, min_target_area >= 0')
 
 
 @dataclass(frozen=True)
@@ -95,7 +100,7 @@ class Decision:
     What the selector made of one frame.
 
     :param reason: why it is or is not a keyframe: 'first', 'baseline', 'tracks', 'blurred',
-        'degenerate', 'lost', 'waiting'.
+        'degenerate', 'rotating', 'lost', 'waiting'.
     :param sharpness_ratio: Laplacian variance / running median (1.0 = typical).
     :param tracked_ratio: corners still tracked / corners detected in the reference.
     :param baseline_ratio: estimated baseline / median depth to the last keyframe (NaN if the
@@ -152,6 +157,7 @@ class KeyframeSelector:
         self._pts: npt.NDArray[np.float32] | None = None  # (N, 1, 2) tracked now
         self._pts0: npt.NDArray[np.float32] | None = None  # the same corners in the reference
         self._cams: tuple[CameraModel, CameraModel] | None = None
+        self._last_step: npt.NDArray[np.float32] | None = None
         self._seeded = 0
         self._in_loss = False
         self._have_keyframe = False
@@ -195,6 +201,7 @@ class KeyframeSelector:
             & (err.ravel() <= self.cfg.max_track_error)
         xy = nxt.reshape(-1, 2)
         ok &= (xy[:, 0] >= 0) & (xy[:, 0] <= w - 1) & (xy[:, 1] >= 0) & (xy[:, 1] <= h - 1)
+        self._last_step = self._pts[ok]  # where the surviving corners were one frame ago
         self._pts, self._pts0 = nxt[ok], self._pts0[ok]
 
     def _geometry(self, cam: CameraModel) -> keyframe_geometry.Motion:
@@ -246,7 +253,25 @@ class KeyframeSelector:
         geo = self._geometry(cam)
         if geo.degenerate:
             return decide(False, 'degenerate')
+        if self._step_parallax_px(cam) < self.cfg.min_step_parallax_px:
+            return decide(False, 'rotating', geo.baseline_ratio)
         return self._by_baseline(geo.baseline_ratio, low_tracks, target_area, decide)
+
+    def _step_parallax_px(self, cam: CameraModel) -> float:
+        """
+        Parallax between the previous frame and this one that no rotation explains, px.
+
+        Inside a pure rotation every frame sits at the centre of the frame that started it, so
+        it may pass the baseline test against the last keyframe; it must still not become a
+        keyframe: the one that started the rotation already holds that viewpoint.
+        """
+        if self._last_step is None or self._pts is None or len(self._pts) < 5:
+            return float('inf')
+        xy0 = cv2.undistortPoints(self._last_step, cam.K, cam.dist).reshape(-1, 2)
+        xy1 = cv2.undistortPoints(self._pts, cam.K, cam.dist).reshape(-1, 2)
+        _, res_sq = keyframe_geometry.rotation_fit(xy0.astype(np.float64),
+                                                   xy1.astype(np.float64))
+        return float(np.sqrt(np.median(res_sq))) * float(cam.K[0, 0])
 
     def _lost(self, grey: npt.NDArray[np.uint8], decide: Decide, blurred: bool) -> Decision:
         """Tracking is lost: restart tracking here, without a keyframe (no baseline to check)."""
