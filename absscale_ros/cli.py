@@ -23,6 +23,7 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ('bench', 'render'): ('absscale_ros.tools.bench_render', 'simulator rendering speed'),
     ('detect',): ('absscale_ros.tools.detect', 'detect target vertices in image files'),
     ('bench', 'detect'): ('absscale_ros.tools.bench_detect', 'detection accuracy against gt.json'),
+    ('bench', 'sfm'): ('absscale_ros.tools.bench_sfm', 'incremental SfM against gt.json, pycolmap'),
     ('bench', 'keyframes'): ('absscale_ros.tools.bench_keyframes', 'keyframes against gt.json'),
 }
 
