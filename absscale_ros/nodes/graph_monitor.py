@@ -11,8 +11,15 @@ from absscale_ros.core.errors import AbsScaleError
 from absscale_ros.nodes import common
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 WATCHED_PREFIXES = ('/absscale/', '/scaled_cloud')
+LATCHED_TOPICS = ('/scaled_cloud', '/absscale/scaled_path', '/absscale/scale')
+LATE_JOINER = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# The last message of these is kept for the run's output files.
+KEPT_TOPICS = ('/scaled_cloud', '/absscale/sparse_cloud', '/absscale/keyframe_path',
+               '/absscale/scaled_path', '/absscale/scale')
 
 
 class GraphMonitorNode(Node):
@@ -23,6 +30,7 @@ class GraphMonitorNode(Node):
         self.bytes: dict[str, int] = {}
         self.diagnostics: dict[str, dict[str, Any]] = {}
         self._subs: dict[str, Any] = {}
+        self.latest: dict[str, tuple[Any, bytes]] = {}  # topic -> (message class, CDR bytes)
         self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics,
                                  common.RELIABLE)
         self._discover()
@@ -31,9 +39,12 @@ class GraphMonitorNode(Node):
     def watch(self, topic: str, msgtype: str) -> None:
         """Count ``topic`` from now on (the runner names the bag's topics before replay)."""
         if topic not in self._subs:
+            cls = common.message_class(msgtype)
+            # Latched outputs only accept subscribers that ask for TRANSIENT_LOCAL; asking it
+            # of a volatile publisher would match nothing.
+            qos = LATE_JOINER if topic in LATCHED_TOPICS else common.RELIABLE
             self._subs[topic] = self.create_subscription(
-                common.message_class(msgtype), topic,
-                lambda data, t=topic: self._count(t, data), common.RELIABLE, raw=True)
+                cls, topic, lambda data, t=topic, c=cls: self._count(t, data, c), qos, raw=True)
 
     @property
     def total(self) -> int:
@@ -42,7 +53,8 @@ class GraphMonitorNode(Node):
     def _discover(self) -> None:
         """Subscribe to each new watched topic, whatever its type."""
         for topic, types in self.get_topic_names_and_types():
-            if topic in self._subs or topic == common.ACK_TOPIC:
+            # Subscribing to a debug overlay would make its node draw it for nobody.
+            if topic in self._subs or topic == common.ACK_TOPIC or 'debug' in topic:
                 continue
             if not topic.startswith(WATCHED_PREFIXES) or len(types) != 1:
                 continue
@@ -51,8 +63,10 @@ class GraphMonitorNode(Node):
             except AbsScaleError:  # a type this process cannot load: not ours to count
                 continue
 
-    def _count(self, topic: str, data: bytes) -> None:
+    def _count(self, topic: str, data: bytes, cls: Any = None) -> None:
         self.counts[topic] = self.counts.get(topic, 0) + 1
+        if topic in KEPT_TOPICS:
+            self.latest[topic] = (cls, data)
         self.bytes[topic] = self.bytes.get(topic, 0) + len(data)
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:

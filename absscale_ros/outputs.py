@@ -1,0 +1,40 @@
+"""
+The files of an offline run, from the last messages the graph published (see DESIGN.md).
+
+``scaled_cloud.ply`` (metres), ``sparse_cloud.ply`` (SfM units), ``trajectory.tum`` (metres when
+a scale was established, else SfM units, as report.json says).
+"""
+from pathlib import Path
+from typing import Any
+
+from absscale_ros import conversions
+from absscale_ros.core import cloud
+import numpy as np
+from rclpy.serialization import deserialize_message
+
+
+def _cloud_arrays(msg: Any) -> tuple[np.ndarray, np.ndarray | None]:
+    pts = conversions.cloud_msg_to_array(msg, skip_nans=True)
+    xyz = np.stack([pts[a] for a in 'xyz'], axis=1).astype(np.float64)
+    rgb = conversions.unpack_rgb(pts['rgb']) if 'rgb' in (pts.dtype.names or ()) else None
+    return xyz, rgb
+
+
+def write_run_outputs(latest: dict[str, tuple[Any, bytes]], out: Path) -> dict[str, Any]:
+    """Write whichever output files the graph's last messages allow; return what was written."""
+    msgs = {topic: deserialize_message(data, cls) for topic, (cls, data) in latest.items()}
+    written: dict[str, Any] = {}
+    for topic, name in (('/scaled_cloud', 'scaled_cloud.ply'),
+                        ('/absscale/sparse_cloud', 'sparse_cloud.ply')):
+        if topic in msgs:
+            xyz, rgb = _cloud_arrays(msgs[topic])
+            cloud.write_ply(out / name, xyz, rgb)
+            written[name] = {'points': len(xyz)}
+    for topic, units in (('/absscale/scaled_path', 'metres'),
+                         ('/absscale/keyframe_path', 'sfm units')):
+        if topic in msgs:
+            poses, stamps = conversions.path_msg_to_poses(msgs[topic])
+            cloud.write_tum(out / 'trajectory.tum', stamps, poses)
+            written['trajectory.tum'] = {'poses': len(poses), 'units': units}
+            break
+    return written
