@@ -6,8 +6,9 @@ surveying"): a blurred frame is never chosen (variance of the Laplacian against 
 median); corners detected in the last keyframe are tracked frame to frame (pyramidal KLT);
 a frame becomes a keyframe when the tracked ratio falls or the baseline grows past thresholds,
 provided two-view geometry shows real translation (GRIC, see ``keyframe_geometry``), so pure
-rotations and tiny baselines never make keyframes. Frames in which the calibration target is seen large
-enough are preferred. Tracking runs on a grey image downscaled to ``track_width_px``.
+rotations and tiny baselines never make keyframes. Frames in which the calibration target is
+seen large enough are preferred. Tracking runs on a grey image downscaled to
+``track_width_px``.
 """
 from collections import deque
 from dataclasses import dataclass
@@ -195,7 +196,7 @@ class KeyframeSelector:
         if self._prev is None or self._pts is None or self._pts0 is None or not len(self._pts):
             return
         nxt, status, err = cv2.calcOpticalFlowPyrLK(self._prev, grey, self._pts, None,
-                                                  winSize=(15, 15), maxLevel=3)
+                                                    winSize=(15, 15), maxLevel=3)
         h, w = grey.shape
         ok = status.ravel().astype(bool) & np.all(np.isfinite(nxt.reshape(-1, 2)), axis=1) \
             & (err.ravel() <= self.cfg.max_track_error)
