@@ -74,19 +74,31 @@ class CameraEffects:
         length = float(np.max(np.linalg.norm(streak[finite], axis=1))) if finite.any() else 0.0
         if length < 0.35:
             return colour, length
-        n = int(min(MAX_BLUR_SAMPLES, np.ceil(length / BLUR_SPACING_PX) + 1))
+        n = int(min(MAX_BLUR_SAMPLES ** 2, np.ceil(length / BLUR_SPACING_PX) + 1))
         h, w = self._camera.height, self._camera.width
         flows = [cv2.resize(np.nan_to_num(e[:-1, :-1]), (w, h), interpolation=cv2.INTER_LINEAR)
                  for e in ends]
         # A point seen at p mid-exposure is at p + f(s) at sub-time s, so at that time pixel p
         # shows what the mid-exposure image has at p - f(s); f runs linearly start -> end.
-        base = [self._u - flows[0][..., 0], self._v - flows[0][..., 1]]
-        step = [(flows[0][..., c] - flows[1][..., c]) / np.float32(n - 1) for c in range(2)]
-        acc = np.zeros_like(colour)
-        for k in range(n):
-            mx, my = (cv2.scaleAdd(step[c], float(k), base[c]) for c in range(2))
-            acc += cv2.remap(colour, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
-        return acc * np.float32(1.0 / n), length
+        start = [self._u - flows[0][..., 0], self._v - flows[0][..., 1]]
+        delta = [flows[0][..., c] - flows[1][..., c] for c in range(2)]
+        if n <= MAX_BLUR_SAMPLES:
+            return self._box(colour, start, delta, n, 1.0 / (n - 1)), length
+        # Long streaks: a box of a samples spaced a * s, then a box of a samples spaced s on its
+        # result, gives a * a samples evenly spaced by s for 2a remaps (flow locally uniform).
+        a = int(np.ceil(np.sqrt(n)))
+        s = 1.0 / (a * a - 1)
+        coarse = self._box(colour, start, delta, a, a * s)
+        return self._box(coarse, [self._u, self._v], delta, a, s), length
+
+    def _box(self, image: F32, start: list[F32], delta: list[F32], count: int,
+             spacing: float) -> F32:
+        """Mean of ``count`` remaps at ``start + k * spacing * delta``, k = 0..count-1."""
+        acc = np.zeros_like(image)
+        for k in range(count):
+            mx, my = (cv2.scaleAdd(delta[c], k * spacing, start[c]) for c in range(2))
+            acc += cv2.remap(image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+        return acc * np.float32(1.0 / count)
 
     def _project(self, points_world_m: F32, T_world_cam: FloatArray) -> F32:
         shape = points_world_m.shape
