@@ -36,6 +36,7 @@ class SfmConfig:
     min_pnp_inliers: int = 30
     pnp_px: float = 2.0  # PnP RANSAC reprojection threshold, px
     max_pending: int = 6  # keyframes kept while waiting for a well-conditioned initial pair
+    max_failures: int = 2  # consecutive unregistrable keyframes (dropped) before a new segment
 
     def __post_init__(self) -> None:
         if self.match_window < 1 or self.relocalise_window < self.match_window or \
@@ -76,6 +77,7 @@ class IncrementalSfm:
         self.K = camera.K
         self.segments: list[Segment] = [self._new_segment()]
         self._next_kf = 0
+        self._failures = 0
 
     def _new_segment(self) -> Segment:
         return Segment(sfm_map.SfmMap(), sfm_graph.SegmentGraph(self.K, self.cfg.graph_cfg))
@@ -110,6 +112,13 @@ class IncrementalSfm:
             culled = seg.graph.batch(seg.map, self._progress)
             msg += f'; batch adjustment culled {culled} landmarks'
         return self._result(status, msg)
+
+    def finish(self) -> UpdateResult:
+        """Final batch adjustment of every initialised segment; the result of the current one."""
+        for seg in self.segments:
+            if seg.initialised:
+                seg.graph.batch(seg.map, self._progress)
+        return self._result('finished', f'{len(self.segments)} segment(s) adjusted')
 
     def _result(self, status: str, msg: str) -> UpdateResult:
         m = self.current.map
@@ -167,6 +176,7 @@ class IncrementalSfm:
             matches = {n.kf_id: self._verified(n.features, kf.features) for n in neighbours}
             inliers = self._pnp(seg.map, kf, neighbours, matches)
             if inliers is not None:
+                self._failures = 0
                 seg.map.keyframes[kf.kf_id] = kf
                 for lm_id, j in inliers:
                     seg.map.observe(lm_id, kf.kf_id, kf.features.points_px[j], j)
@@ -176,6 +186,11 @@ class IncrementalSfm:
                                   self.cfg.twoview_cfg, self.cfg.vertex_cfg)
                 seg.graph.update(seg.map)
                 return status, f'{len(inliers)} PnP inliers, {added} new landmarks'
+        self._failures += 1
+        if self._failures < self.cfg.max_failures:
+            return 'rejected', (f'keyframe {kf.kf_id} could not be registered or relocalised: '
+                                f'dropped ({self._failures} in a row)')
+        self._failures = 0
         self.segments.append(self._new_segment())
         self.current.pending.append(kf)
         return 'new_segment', (f'keyframe {kf.kf_id} could not be registered or relocalised: '
