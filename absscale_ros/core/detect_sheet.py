@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from absscale_ros.core import lines, targets
+from absscale_ros.core import lines, quads, targets
 
 Array = npt.NDArray[np.float64]
 
@@ -40,6 +40,11 @@ class SheetConfig:
     :param canny_high: upper Canny threshold of the colour-edge candidates.
     :param focal_frac: focal length over the larger image side, used for the aspect check
         when no camera model is given and the quadrilateral does not determine it.
+    :param line_candidates: when the masks give no sheet, also try quadrilaterals of straight
+        edges scored by gradient support (``quads``): a page on other pages or on a desk of
+        the same white.
+    :param line_work_max_side_px: the line search runs on an image at most this big.
+    :param line_max_refine: line hypotheses refined at full resolution, best supported first.
     """
 
     sheet: str = 'letter'
@@ -55,6 +60,9 @@ class SheetConfig:
     focal_frac: float = 0.9
     canny_low: int = 20
     canny_high: int = 50
+    line_candidates: bool = True
+    line_work_max_side_px: int = 320
+    line_max_refine: int = 3
 
     def __post_init__(self) -> None:
         if not 0.0 < self.min_area_frac < 1.0:
@@ -226,6 +234,9 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
     """
     Find every sheet of the configured size in a BGR image.
 
+    Candidates come from the region masks first; only when none passes are quadrilaterals of
+    straight edges tried (``quads``), which costs a few more milliseconds.
+
     :param image_bgr: (H, W, 3) uint8 BGR image.
     :param K: (3, 3) intrinsics px for the aspect check, or None to estimate.
     :returns: detections, best first; each has 4 corners ordered as in ``targets``.
@@ -234,25 +245,54 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
     scale = min(1.0, cfg.work_max_side_px / max(h, w))
     work = cv2.resize(image_bgr, (round(w * scale), round(h * scale)),
                       interpolation=cv2.INTER_AREA)
-    model = cfg.model()
-    band = max(6.0, 3.0 / scale)
     found: list[tuple[float, Array]] = []
     for quad in _candidates(work, whiteness(work), cfg):
-        quad_full = (quad + 0.5) / scale - 0.5  # pixel centres at integer coordinates
-        refined = refine_quad(image_bgr, quad_full, band)
-        if refined is None or refined[1].min() < cfg.min_support:
-            continue
-        if refined[2].min() < cfg.min_contrast:
-            continue  # not a sheet on a different surface all round
-        corners = refined[0]
-        aspect = rectangle_aspect(corners, K, cfg.focal_frac * max(h, w),
-                                  np.array([(w - 1) / 2.0, (h - 1) / 2.0]))
-        if abs(aspect / model.aspect - 1.0) > cfg.aspect_tol:
-            continue
-        if all(np.abs(corners - c).max() > 4.0 for _, c in found):
-            found.append((float(refined[1].mean()), corners))
+        _accept(image_bgr, (quad + 0.5) / scale - 0.5, max(6.0, 3.0 / scale), cfg, K, found)
+    if not found and cfg.line_candidates:
+        for quad_full, band in _line_candidates(image_bgr, cfg):
+            _accept(image_bgr, quad_full, band, cfg, K, found)
     found.sort(key=lambda sc: -sc[0])
-    return [_detection(c, s, model) for s, c in found]
+    return [_detection(c, s, cfg.model()) for s, c in found]
+
+
+def _line_candidates(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig
+                     ) -> list[tuple[Array, float]]:
+    """Return (full-resolution quad, refinement band px) hypotheses from straight edges."""
+    h, w = image_bgr.shape[:2]
+    scale = min(1.0, cfg.line_work_max_side_px / max(h, w))
+    work = cv2.resize(image_bgr, (round(w * scale), round(h * scale)),
+                      interpolation=cv2.INTER_AREA)
+    min_side = np.sqrt(cfg.min_area_frac * work.shape[0] * work.shape[1] / cfg.model().aspect)
+    hyps, _ = quads.find_quads(work, quads.QuadConfig(min_side_px=float(min_side)))
+    centre = np.array([(work.shape[1] - 1) / 2.0, (work.shape[0] - 1) / 2.0])
+    kept: list[Array] = []
+    for quad in hyps:  # best supported first
+        aspect = rectangle_aspect(quad, None, cfg.focal_frac * max(work.shape), centre)
+        if abs(aspect / cfg.model().aspect - 1.0) > 2.0 * cfg.aspect_tol:
+            continue  # rough corners: a looser test here, the exact one after refinement
+        if all(np.abs(quad - q).max() > 2.0 for q in kept):  # neighbouring Hough peaks
+            kept.append(quad)
+        if len(kept) == cfg.line_max_refine:
+            break
+    return [((q + 0.5) / scale - 0.5, max(6.0, 3.0 / scale)) for q in kept]
+
+
+def _accept(image_bgr: npt.NDArray[np.uint8], quad_full: Array, band: float, cfg: SheetConfig,
+            K: Array | None, found: list[tuple[float, Array]]) -> None:
+    """Refine a candidate; append (score, corners) to ``found`` when it passes every test."""
+    h, w = image_bgr.shape[:2]
+    refined = refine_quad(image_bgr, quad_full, band)
+    if refined is None or refined[1].min() < cfg.min_support:
+        return
+    if refined[2].min() < cfg.min_contrast:
+        return  # not a sheet on a different surface all round
+    corners = refined[0]
+    aspect = rectangle_aspect(corners, K, cfg.focal_frac * max(h, w),
+                              np.array([(w - 1) / 2.0, (h - 1) / 2.0]))
+    if abs(aspect / cfg.model().aspect - 1.0) > cfg.aspect_tol:
+        return
+    if all(np.abs(corners - c).max() > 4.0 for _, c in found):
+        found.append((float(refined[1].mean()), corners))
 
 
 def _detection(corners: Array, score: float, model: targets.SheetModel

@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from absscale_ros.core import detect, detect_cube, detect_sheet, lines, targets
+from absscale_ros.core import detect, detect_cube, detect_sheet, lines, quads, targets
 
 sys.path.insert(0, str(Path(__file__).parent))
 import synth_targets as st  # noqa: E402
@@ -109,24 +109,75 @@ def test_rectangle_aspect_under_perspective():
     assert est == pytest.approx(h / w, rel=0.02)
 
 
-def test_real_smartdoc_frames():
-    """Real A4 photographs (SmartDoc 2015, CC BY 4.0) with hand-annotated corners."""
-    cfg = detect_sheet.SheetConfig(sheet='a4')
-    rels, found = [], 0
+def _smartdoc():
     with open(SMARTDOC / 'ground_truth.csv') as f:
         for row in csv.DictReader(f):
             img = cv2.imread(str(SMARTDOC / 'frames' / row['image_path'].replace('/', '_')))
-            true_px = np.array([[float(row[k + '_x']), float(row[k + '_y'])]
-                                for k in ('tl', 'tr', 'br', 'bl')])
-            dets = detect_sheet.detect_sheets(img, cfg)
-            if dets:
-                found += 1
-                rels += list(min((_sheet_errors(d, true_px)[1] for d in dets),
-                                 key=lambda r: r.mean()))
-    # The two cluttered background05 frames (page on a near-white desk, on top of other
-    # pages) are not found yet: see the issue 4 report.
+            yield row, img, np.array([[float(row[k + '_x']), float(row[k + '_y'])]
+                                      for k in ('tl', 'tr', 'br', 'bl')])
+
+
+def _real_figures(find):
+    rels, found = [], 0
+    for _, img, true_px in _smartdoc():
+        dets = find(img)
+        if dets:
+            found += 1
+            rels += list(min((_sheet_errors(d, true_px)[1] for d in dets),
+                             key=lambda r: r.mean()))
+    return found, rels
+
+
+def test_real_smartdoc_frames():
+    """Real A4 photographs (SmartDoc 2015, CC BY 4.0) with hand-annotated corners."""
+    cfg = detect_sheet.SheetConfig(sheet='a4')
+    found, rels = _real_figures(lambda img: detect_sheet.detect_sheets(img, cfg))
+    # The two cluttered background05 frames (the page on other pages of the same white, a
+    # cable and pens across its sides) are not found: see the issue 4 report.
     assert found >= 4
     assert np.median(rels) <= 0.005
+
+
+def test_real_smartdoc_frames_line_hypotheses_alone():
+    """The straight-edge quadrilaterals find the same pages without any region mask."""
+    cfg = detect_sheet.SheetConfig(sheet='a4')
+
+    def lines_only(img):
+        found = []
+        for quad, band in detect_sheet._line_candidates(img, cfg):
+            detect_sheet._accept(img, quad, band, cfg, None, found)
+        return [detect_sheet._detection(c, s, cfg.model()) for s, c in found]
+    found, rels = _real_figures(lines_only)
+    assert found >= 4
+    assert np.median(rels) <= 0.005
+
+
+def test_page_on_pages_of_the_same_white_found_by_its_edges():
+    """A page on two other pages: one white blob to the masks, four straight sides to lines."""
+    true_px = st.sheet_corners(centre_px=(640, 360), width_px=300, angle_deg=8)
+
+    def under(img):
+        for dx, dy, ang in ((40, 25, 2), (-30, 35, 14)):
+            st.fill(img, st.sheet_corners((640 + dx, 360 + dy), 300, angle_deg=ang),
+                    (212, 216, 220))
+        st.fill(img, true_px, (236, 239, 241))
+        st.fill(img, [[420, 300], [860, 460], [866, 448], [426, 288]], (25, 25, 25))  # a cable
+    img = st.render_sheet(_rng(11), np.zeros((4, 2)) + 5.0, desk_bgr=(150, 170, 190),
+                          extra=under)
+    dets = detect_sheet.detect_sheets(img, detect_sheet.SheetConfig(sheet='a4'))
+    assert len(dets) >= 1
+    rel = min((_sheet_errors(d, true_px)[1] for d in dets), key=lambda r: r.mean())
+    assert np.median(rel) < 0.005
+
+
+def test_quad_hypotheses_need_support_on_all_four_sides():
+    img = st.render_sheet(_rng(12), st.sheet_corners(width_px=300))
+    work = cv2.resize(img, (320, 180), interpolation=cv2.INTER_AREA)
+    hyps, sup = quads.find_quads(work, quads.QuadConfig(min_side_px=15.0))
+    assert len(hyps) >= 1 and sup.min() >= 0.7
+    img[:, 640:] = img[:, 630:631]  # erase the right half: no closed outline left
+    work = cv2.resize(img, (320, 180), interpolation=cv2.INTER_AREA)
+    assert len(quads.find_quads(work, quads.QuadConfig(min_side_px=15.0))[0]) == 0
 
 
 # ---- cube -----------------------------------------------------------------------------------
