@@ -816,3 +816,8 @@ def scaled_cloud_msg(msg: Any, factor: float, stamp_ns: int, frame_id: str) -> P
             raise errors.MessageError(f'cloud has no {axis!r} field to scale')
         points[axis] = points[axis] * factor
     return array_to_cloud_msg(points, stamp_ns, frame_id)
+
+
+def cloud_stamp_and_size(msg: Any) -> tuple[int, int]:
+    """(header stamp in ns, number of points) of a PointCloud2, without decoding it."""
+    return stamp_to_ns(msg.header.stamp), int(msg.width) * int(msg.height)

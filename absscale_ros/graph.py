@@ -109,6 +109,7 @@ def run_graph(bag: str, config: str, replay_overrides: dict[str, Any] | None = N
             'nodes': {name: _node_report(node) for name, node in nodes.items()},
             **monitor.report(),
         }
+        report['detections'] = list(monitor.detections)
         report['_latest'] = dict(monitor.latest)  # popped by the caller that writes files
         if on_progress is not None:
             progress.published, progress.steps, progress.elapsed_s = \

@@ -20,10 +20,13 @@ def _cloud_arrays(msg: Any) -> tuple[np.ndarray, np.ndarray | None]:
     return xyz, rgb
 
 
-def write_run_outputs(latest: dict[str, tuple[Any, bytes]], out: Path) -> dict[str, Any]:
+def write_run_outputs(latest: dict[str, tuple[Any, bytes]], out: Path,
+                      report: dict[str, Any]) -> dict[str, Any]:
     """Write whichever output files the graph's last messages allow; return what was written."""
     msgs = {topic: deserialize_message(data, cls) for topic, (cls, data) in latest.items()}
     written: dict[str, Any] = {}
+    _picture(msgs, out, report)
+    written['run.png'] = {}
     for topic, name in (('/scaled_cloud', 'scaled_cloud.ply'),
                         ('/absscale/sparse_cloud', 'sparse_cloud.ply')):
         if topic in msgs:
@@ -38,3 +41,18 @@ def write_run_outputs(latest: dict[str, tuple[Any, bytes]], out: Path) -> dict[s
             written['trajectory.tum'] = {'poses': len(poses), 'units': units}
             break
     return written
+
+
+def _picture(msgs: dict[str, Any], out: Path, report: dict[str, Any]) -> None:
+    from absscale_ros import run_figure
+    xyz = rgb = traj = quats = None
+    if '/scaled_cloud' in msgs:
+        xyz, rgb = _cloud_arrays(msgs['/scaled_cloud'])
+    if '/absscale/scaled_path' in msgs:
+        poses, _ = conversions.path_msg_to_poses(msgs['/absscale/scaled_path'])
+        traj, quats = poses[:, :3], poses[:, 3:]
+    up = run_figure.up_from_cameras(quats) if quats is not None and len(quats) else None
+    scale_report = report.get('nodes', {}).get('scale', {})
+    run_figure.draw_run(out / 'run.png', report.get('detections', []),
+                        scale_report.get('history', []), xyz, rgb, traj, up,
+                        f'absscale run: {Path(report["bag"]).name}')

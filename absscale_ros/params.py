@@ -54,8 +54,21 @@ def load_yaml(path: Path) -> dict[str, dict[str, Any]]:
         params = (body or {}).get('ros__parameters') if isinstance(body, dict) else None
         if not isinstance(params, dict):
             raise AbsScaleError(f'{path}: section {node!r} has no ros__parameters mapping')
-        sections[str(node).lstrip('/')] = params
+        sections[str(node).lstrip('/')] = _flatten(params)
     return sections
+
+
+def _flatten(params: dict[str, Any], prefix: str = '') -> dict[str, Any]:
+    """Nested mappings become dotted names (``sheet: {aspect_tol: 0.1}`` -> ``sheet.aspect_tol``),
+    as ROS 2 reads a parameter file."""
+    flat: dict[str, Any] = {}
+    for key, value in params.items():
+        name = f'{prefix}{key}'
+        if isinstance(value, dict):
+            flat.update(_flatten(value, name + '.'))
+        else:
+            flat[name] = value
+    return flat
 
 
 def node_params(sections: dict[str, dict[str, Any]], node: str) -> dict[str, Any]:

@@ -11,9 +11,11 @@ from absscale_ros.core.errors import AbsScaleError
 from absscale_ros.nodes import common
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
+from rclpy.serialization import deserialize_message
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 WATCHED_PREFIXES = ('/absscale/', '/scaled_cloud')
+VERTICES_TOPIC = '/absscale/vertices'
 LATCHED_TOPICS = ('/scaled_cloud', '/absscale/scaled_path', '/absscale/scale')
 LATE_JOINER = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -31,6 +33,7 @@ class GraphMonitorNode(Node):
         self.diagnostics: dict[str, dict[str, Any]] = {}
         self._subs: dict[str, Any] = {}
         self.latest: dict[str, tuple[Any, bytes]] = {}  # topic -> (message class, CDR bytes)
+        self.detections: list[tuple[int, int]] = []  # (stamp_ns, vertices) per frame
         self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics,
                                  common.RELIABLE)
         self._discover()
@@ -67,6 +70,9 @@ class GraphMonitorNode(Node):
         self.counts[topic] = self.counts.get(topic, 0) + 1
         if topic in KEPT_TOPICS:
             self.latest[topic] = (cls, data)
+        if topic == VERTICES_TOPIC:
+            self.detections.append(conversions.cloud_stamp_and_size(deserialize_message(data,
+                                                                                        cls)))
         self.bytes[topic] = self.bytes.get(topic, 0) + len(data)
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:

@@ -25,7 +25,7 @@ def run(args: argparse.Namespace) -> int:
     print(f'absscale demo: replaying {bag.name} through the graph (config {args.scene})')
     report = graph.run_graph(str(bag), args.scene, replay_overrides={'mode': 'step'})
     from absscale_ros import outputs
-    report['outputs'] = outputs.write_run_outputs(report.pop('_latest'), out)
+    report['outputs'] = outputs.write_run_outputs(report.pop('_latest'), out, report)
     (out / 'report.json').write_text(json.dumps(report, indent=2, default=str) + '\n')
     replay = report['replay']
     print(f'  frames replayed : {replay["steps"]} ({replay["published"]} messages) in '

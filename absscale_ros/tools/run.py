@@ -44,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
     if show is not None:
         print(file=sys.stderr)
     from absscale_ros import outputs
-    report['outputs'] = outputs.write_run_outputs(report.pop('_latest'), out)
+    report['outputs'] = outputs.write_run_outputs(report.pop('_latest'), out, report)
     (out / 'report.json').write_text(json.dumps(report, indent=2, default=str) + '\n')
     print(f'replayed {report["replay"]["published"]} messages '
           f'({report["replay"]["steps"]} frames) in {report["wall_time_s"]:.1f} s; '
