@@ -220,8 +220,9 @@ def points_behind_pixels(gt: dict[str, object], frame_index: int,
     T = np.array(gt['frames'][frame_index]['T_world_cam'])  # type: ignore[index]
     dirs = simcam.ray_directions(r.camera, np.asarray(pixels_px, float).reshape(-1, 2))
     t, _ = r.cast(T, dirs)
-    pts = T[:3, 3] + (dirs.astype(np.float64) * t[:, None]) @ T[:3, :3].T
-    pts[~np.isfinite(t)] = np.nan
+    hit = np.isfinite(t)
+    pts = np.full((len(t), 3), np.nan)
+    pts[hit] = T[:3, 3] + (dirs[hit].astype(np.float64) * t[hit, None]) @ T[:3, :3].T
     return pts
 
 

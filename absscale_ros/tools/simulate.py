@@ -71,28 +71,43 @@ def gt_path(bag: Path) -> Path:
     return bag.with_name(bag.name + '.gt.json')
 
 
+def make_serializer() -> Callable[[object, str], bytes]:
+    """
+    ``(msg, msgtype) -> CDR bytes`` with zeroed alignment padding.
+
+    rclpy's serialize_message leaves CDR padding bytes uninitialised (they differ from run to
+    run), so the bytes go once through rosbags' CDR codec, which writes zeros there: the same
+    seed then gives the same bag, byte for byte.
+    """
+    from rclpy.serialization import serialize_message
+    from rosbags.typesys import get_typestore, Stores
+    store = get_typestore(Stores.ROS2_JAZZY)
+
+    def serialize(msg: object, msgtype: str) -> bytes:
+        raw = bytes(serialize_message(msg))
+        return bytes(store.serialize_cdr(store.deserialize_cdr(raw, msgtype), msgtype))
+    return serialize
+
+
 def make_encoder(args: argparse.Namespace) -> tuple[str, str, Callable[..., bytes]]:
     """Topic, message type and ``(image_bgr, stamp_ns) -> CDR bytes`` for the chosen format."""
-    from rclpy.serialization import serialize_message
-
     from absscale_ros import conversions
+    serialize = make_serializer()
     if args.raw:
         def encode(image: npt.NDArray[np.uint8], stamp_ns: int) -> bytes:
             msg = conversions.array_to_image_msg(image, 'bgr8', stamp_ns, args.frame_id)
-            return bytes(serialize_message(msg))
+            return serialize(msg, RAW_TYPE)
         return args.image_topic or '/camera/image_raw', RAW_TYPE, encode
 
     def encode_compressed(image: npt.NDArray[np.uint8], stamp_ns: int) -> bytes:
         msg = conversions.bgr_to_compressed_msg(image, args.format, args.quality, stamp_ns,
                                                 args.frame_id)
-        return bytes(serialize_message(msg))
+        return serialize(msg, COMPRESSED_TYPE)
     return args.image_topic or '/camera/image_raw/compressed', COMPRESSED_TYPE, encode_compressed
 
 
 def simulate(args: argparse.Namespace) -> dict[str, float]:
     """Write the bag and gt.json; returns timing figures (s, frames/s)."""
-    from rclpy.serialization import serialize_message
-
     from absscale_ros import bagio, conversions
     from absscale_ros.sim import groundtruth, simulation
     width, height = parse_size(args.size)
@@ -104,6 +119,7 @@ def simulate(args: argparse.Namespace) -> dict[str, float]:
     sim = simulation.Simulation(cfg)
     setup_s = time.perf_counter() - t0
     topic, msgtype, encode = make_encoder(args)
+    serialize = make_serializer()
     gt = sim.header({'image_topic': topic, 'camera_info_topic': args.info_topic,
                      'image_format': 'raw' if args.raw else args.format,
                      'jpeg_quality': args.quality if not args.raw and args.format == 'jpeg'
@@ -113,7 +129,7 @@ def simulate(args: argparse.Namespace) -> dict[str, float]:
     with bagio.BagWriter(args.out) as writer:
         for f in sim.frames(encode=encode, pipelined=not args.no_pipeline):
             info = conversions.camera_model_to_info_msg(sim.camera, f.stamp_ns, args.frame_id)
-            writer.write(args.info_topic, INFO_TYPE, f.stamp_ns, bytes(serialize_message(info)))
+            writer.write(args.info_topic, INFO_TYPE, f.stamp_ns, serialize(info, INFO_TYPE))
             writer.write(topic, msgtype, f.stamp_ns, f.data)
             frames.append(f.truth)
             if (f.index + 1) % 60 == 0:
