@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from absscale_ros.core import lines, targets
+from absscale_ros.core import lines, sides, targets
 
 Array = npt.NDArray[np.float64]
 
@@ -146,41 +146,39 @@ def _hough_sides(quad: Array, contour_px: Array, cfg: CubeConfig) -> list[Array]
     return side_lines
 
 
-def _refine_face(image_bgr: npt.NDArray[np.uint8], colour: str, side_lines: list[Array],
-                 quad_px: Array, cfg: CubeConfig) -> Face | None:
-    """Refine a face's sides on the full-resolution colour step across each of them."""
-    h, w = image_bgr.shape[:2]
-    refined, supports = [], []
-    for i, line in enumerate(side_lines):
-        # A strip around the side only: the colour projection is per side (red-yellow,
-        # red-background... steps differ).
-        ends = np.array([quad_px[i], quad_px[(i + 1) % 4]])
-        x0, y0 = np.maximum(np.floor(ends.min(0)).astype(int) - 10, 0)
-        x1, y1 = np.minimum(np.ceil(ends.max(0)).astype(int) + 10, [w - 1, h - 1])
-        roi = image_bgr[y0:y1 + 1, x0:x1 + 1].astype(np.float32)
-        origin = np.array([x0, y0], dtype=np.float64)
-        line = line.copy()
-        line[2] += line[:2] @ origin  # into ROI coordinates
-        p0, p1 = ends[0] - origin, ends[1] - origin
-        proj, step = lines.side_projection(roi, line, p0, p1)
-        if step < cfg.min_step:
-            return None
-        n = int(np.clip(np.hypot(*(p1 - p0)) / 3.0, 12, 64))
-        line, sup = lines.refine_side(proj, line, p0, p1, (4.0, 2.5), n)
-        line[2] -= line[:2] @ origin
-        refined.append(line)
-        supports.append(sup)
-    corners = lines.quad_corners(refined)
-    hough_corners = lines.quad_corners(side_lines)
-    if corners is None or hough_corners is None:
-        return None
-    if not cv2.isContourConvex(corners.astype(np.float32)) or min(supports) < cfg.min_support:
-        return None
-    # Acute corners are cut by the rough outline, so allow a quarter of the longest side.
-    side_px = np.hypot(*(hough_corners - np.roll(hough_corners, -1, 0)).T).max()
-    if np.abs(corners - hough_corners).max() > max(4.0, 0.25 * side_px):
-        return None  # the refinement ran off to another edge
-    return Face(colour, corners, np.array(refined), np.array(supports))
+def _refine_faces(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array, Array]],
+                  cfg: CubeConfig) -> list[Face]:
+    """
+    Refine every face's sides on the full-resolution colour step across each of them.
+
+    All sides of all faces go through one ``sides.refine`` call (each on its own colour step:
+    red-yellow, red-background... differ).
+
+    :param rough: (colour, (4, 3) Hough side lines, (4, 2) rough quad px) per face.
+    """
+    if not rough:
+        return []
+    side_lines = np.concatenate([ls for _, ls, _ in rough])
+    ends = np.concatenate([np.stack([q, np.roll(q, -1, axis=0)], axis=1) for _, _, q in rough])
+    n = int(np.clip(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1).max() / 3.0, 12, 48))
+    refined, supports, steps = sides.refine(image_bgr, side_lines, ends, (4.0, 2.5), n)
+    faces = []
+    for f, (colour, hough, _) in enumerate(rough):
+        ls, sup = refined[4 * f:4 * f + 4], supports[4 * f:4 * f + 4]
+        if steps[4 * f:4 * f + 4].min() < cfg.min_step or sup.min() < cfg.min_support:
+            continue
+        corners = lines.quad_corners(list(ls))
+        hough_corners = lines.quad_corners(list(hough))
+        if corners is None or hough_corners is None:
+            continue
+        if not cv2.isContourConvex(corners.astype(np.float32)):
+            continue
+        # Acute corners are cut by the rough outline, so allow a quarter of the longest side.
+        side_px = np.hypot(*(hough_corners - np.roll(hough_corners, -1, 0)).T).max()
+        if np.abs(corners - hough_corners).max() > max(4.0, 0.25 * side_px):
+            continue  # the refinement ran off to another edge
+        faces.append(Face(colour, corners, ls.copy(), sup.copy()))
+    return faces
 
 
 def detect_faces(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig) -> list[Face]:
@@ -190,16 +188,14 @@ def detect_faces(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig) -> list[Face
     work = cv2.resize(image_bgr, (round(w * scale), round(h * scale)),
                       interpolation=cv2.INTER_AREA)
     hsv = cv2.cvtColor(work, cv2.COLOR_BGR2HSV)
-    faces = []
+    rough = []
     for colour, hue in cfg.hue_ranges().items():
         for quad, contour in _face_quads(colour_mask(hsv, hue, cfg), cfg):
             quad_full = (quad + 0.5) / scale - 0.5
             contour_full = (contour.reshape(-1, 2).astype(np.float64) + 0.5) / scale - 0.5
-            side_lines = _hough_sides(quad_full, contour_full, cfg)
-            face = _refine_face(image_bgr, colour, side_lines, quad_full, cfg)
-            if face is not None:
-                faces.append(face)
-    return faces
+            rough.append((colour, np.array(_hough_sides(quad_full, contour_full, cfg)),
+                          quad_full))
+    return _refine_faces(image_bgr, rough, cfg)
 
 
 def _find(parent: list[int], i: int) -> int:

@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from absscale_ros.core import lines, quads, targets
+from absscale_ros.core import lines, quads, sides, targets
 
 Array = npt.NDArray[np.float64]
 
@@ -195,38 +195,24 @@ def refine_quad(image_bgr: npt.NDArray[np.uint8], quad_px: Array, coarse_band_px
     """
     Refine a rough quadrilateral's sides on the colour step across each and intersect them.
 
-    Each side is refined in a strip around it, on the image projected on that side's own
-    inside-minus-outside colour (``lines.side_projection``), so a sheet that is brighter than
-    the desk on one side and only differently tinted on another is handled alike.
+    The four sides are refined together (``sides.refine``), each on the image projected on
+    its own inside-minus-outside colour, so a sheet that is brighter than the desk on one side
+    and only differently tinted on another is handled alike.
 
     :returns: ((4, 2) corners px, (4,) side supports, (4,) colour steps) or None when the
         sides do not close.
     """
-    h, w = image_bgr.shape[:2]
     centre = quad_px.mean(axis=0)
-    side_lines, supports, steps = [], [], []
-    for i in range(4):
-        ends = np.array([quad_px[i], quad_px[(i + 1) % 4]])
-        pad = int(coarse_band_px) + 12
-        x0, y0 = np.maximum(np.floor(ends.min(0)).astype(int) - pad, 0)
-        x1, y1 = np.minimum(np.ceil(ends.max(0)).astype(int) + pad, [w - 1, h - 1])
-        origin = np.array([x0, y0], dtype=np.float64)
-        roi = image_bgr[y0:y1 + 1, x0:x1 + 1].astype(np.float32)
-        p0, p1 = ends - origin
-        line = lines.line_through(p0, p1, centre - origin)
-        proj, step = lines.side_projection(roi, line, p0, p1, max(4.0, coarse_band_px))
-        n = int(np.clip(np.hypot(*(p1 - p0)) / 4.0, 16, 96))
-        line, sup = lines.refine_side(proj, line, p0, p1, (coarse_band_px, 4.0, 3.0), n)
-        line[2] -= line[:2] @ origin
-        side_lines.append(line)
-        supports.append(sup)
-        steps.append(step)
-    corners = lines.quad_corners(side_lines)
+    ends = np.stack([quad_px, np.roll(quad_px, -1, axis=0)], axis=1)
+    rough = np.array([lines.line_through(p0, p1, centre) for p0, p1 in ends])
+    n = int(np.clip(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1).mean() / 4.0, 16, 64))
+    refined, supports, steps = sides.refine(image_bgr, rough, ends, (coarse_band_px, 4.0, 3.0), n)
+    corners = lines.quad_corners(list(refined))
     if corners is None or not cv2.isContourConvex(corners.astype(np.float32)):
         return None
     if np.abs(corners - quad_px).max() > 2.0 * coarse_band_px + 4.0:
         return None
-    return corners, np.array(supports), np.array(steps)
+    return corners, supports, steps
 
 
 def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,

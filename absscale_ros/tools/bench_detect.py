@@ -31,6 +31,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='detector target (default: the bag scene variant target)')
     parser.add_argument('--max-frames', type=int, default=0, help='frames per bag (0 = all)')
     parser.add_argument('--json', action='store_true', help='print the figures as JSON')
+    parser.add_argument('--threads', type=int, default=1,
+                        help='OpenCV threads while timing (default 1: one core; 0 = leave as is)')
 
 
 def _mask(shape: tuple[int, int], rings: list[Any], holes: list[Any]) -> np.ndarray:
@@ -171,6 +173,8 @@ def _fmt(x: float | None, spec: str = '.1f') -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.threads:
+        cv2.setNumThreads(args.threads)  # the budget is per core: time one thread by default
     tally = Tally()
     for path in args.bags:
         bench_bag(path, args.target, args.max_frames, tally)
