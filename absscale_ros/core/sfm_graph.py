@@ -110,12 +110,22 @@ class SegmentGraph:
             if est.exists(point_key(lm_id)):
                 lm.point_world = np.asarray(est.atPoint3(point_key(lm_id)), np.float64)
 
-    def update(self, m: sfm_map.SfmMap) -> None:
-        """Add the map's new observations to iSAM2, update, write the estimate into ``m``."""
+    def update(self, m: sfm_map.SfmMap, fallback: bool = True) -> None:
+        """
+        Add the map's new observations to iSAM2, update, write the estimate into ``m``.
+
+        :param fallback: on an ill-conditioned iSAM2 step, run ``batch`` instead of raising.
+        """
         graph, values = self._new_terms(m)
         if graph.size() == 0:
             return
-        self._isam.update(graph, values)
+        try:
+            self._isam.update(graph, values)
+        except RuntimeError:  # gtsam IndeterminantLinearSystem: damped batch LM copes with it
+            if not fallback:
+                raise
+            self.batch(m)
+            return
         self._write_back(m, self._isam.calculateEstimate())
 
     def batch(self, m: sfm_map.SfmMap, progress: Progress | None = None) -> int:
@@ -137,5 +147,8 @@ class SegmentGraph:
         self._write_back(m, result)
         culled = m.cull(np.array(self._cal.K()), self._cfg.cull_px)
         self._reset()
-        self.update(m)
+        try:
+            self.update(m, fallback=False)
+        except RuntimeError:  # keep the LM estimate; the next keyframe restarts iSAM2
+            self._reset()
         return culled
