@@ -54,6 +54,8 @@ class KeyframeConfig:
     :param min_step_parallax_px: parallax between the previous frame and a keyframe candidate
         that no rotation explains, px at tracking scale; below it the camera is turning on the
         spot (or standing still) and the candidate waits.
+    :param min_step_parallax_fraction: the same test relative to the frame-to-frame corner
+        motion: a fast pan blurs the corners, and KLT noise grows with the motion.
     :param sigma_px: corner position noise at tracking scale, px (GRIC and RANSAC).
     :param min_inliers: two-view inliers needed to trust the geometry.
     """
@@ -74,6 +76,7 @@ class KeyframeConfig:
     min_target_area: float = 0.005
     min_parallax_px: float = 3.0
     min_step_parallax_px: float = 0.3
+    min_step_parallax_fraction: float = 0.1
     sigma_px: float = 1.0
     min_inliers: int = 15
 
@@ -90,7 +93,7 @@ class KeyframeConfig:
             raise ValueError('lost_tracks >= 5, min_inliers >= 5, no_target_factor >= 1')
         if min(self.sigma_px, self.max_track_error) <= 0.0 or min(
                 self.min_flow_px, self.min_parallax_px, self.min_step_parallax_px,
-                self.min_target_area) < 0.0:
+                self.min_step_parallax_fraction, self.min_target_area) < 0.0:
             raise ValueError('sigma_px, max_track_error > 0; min_flow_px, min_parallax_px, '
                              'min_step_parallax_px, min_target_area >= 0')
 
@@ -205,11 +208,16 @@ class KeyframeSelector:
         self._last_step = self._pts[ok]  # where the surviving corners were one frame ago
         self._pts, self._pts0 = nxt[ok], self._pts0[ok]
 
-    def _geometry(self, cam: CameraModel) -> keyframe_geometry.Motion:
+    def _geometry(self, cam: CameraModel) -> keyframe_geometry.Motion | None:
+        """Two-view test against the reference; None when a pure rotation already explains
+        the tracks (a cheap fit that spares the essential-matrix RANSAC)."""
         assert self._pts is not None and self._pts0 is not None
         xy0 = cv2.undistortPoints(self._pts0, cam.K, cam.dist).reshape(-1, 2).astype(np.float64)
         xy1 = cv2.undistortPoints(self._pts, cam.K, cam.dist).reshape(-1, 2).astype(np.float64)
         f_px = float(cam.K[0, 0])
+        _, rot_sq = keyframe_geometry.rotation_fit(xy0, xy1)
+        if np.sqrt(np.median(rot_sq)) * f_px < self.cfg.min_parallax_px:
+            return None
         return keyframe_geometry.analyse(xy0, xy1, self.cfg.sigma_px / f_px,
                                          self.cfg.min_inliers, self.cfg.min_parallax_px / f_px)
 
@@ -251,28 +259,32 @@ class KeyframeSelector:
         low_tracks = tracked < self.cfg.min_tracked_ratio
         if flow_px < self.cfg.min_flow_px and not low_tracks:
             return decide(False, 'waiting')
+        parallax_px, flow_step_px = self._step_parallax_px(cam)
+        if parallax_px < max(self.cfg.min_step_parallax_px,
+                             self.cfg.min_step_parallax_fraction * flow_step_px):
+            return decide(False, 'rotating')
         geo = self._geometry(cam)
-        if geo.degenerate:
+        if geo is None or geo.degenerate:
             return decide(False, 'degenerate')
-        if self._step_parallax_px(cam) < self.cfg.min_step_parallax_px:
-            return decide(False, 'rotating', geo.baseline_ratio)
         return self._by_baseline(geo.baseline_ratio, low_tracks, target_area, decide)
 
-    def _step_parallax_px(self, cam: CameraModel) -> float:
+    def _step_parallax_px(self, cam: CameraModel) -> tuple[float, float]:
         """
-        Parallax between the previous frame and this one that no rotation explains, px.
+        Parallax between the previous frame and this one that no rotation explains, and the
+        median corner motion between them, px at tracking scale.
 
         Inside a pure rotation every frame sits at the centre of the frame that started it, so
         it may pass the baseline test against the last keyframe; it must still not become a
         keyframe: the one that started the rotation already holds that viewpoint.
         """
         if self._last_step is None or self._pts is None or len(self._pts) < 5:
-            return float('inf')
+            return float('inf'), 0.0
         xy0 = cv2.undistortPoints(self._last_step, cam.K, cam.dist).reshape(-1, 2)
         xy1 = cv2.undistortPoints(self._pts, cam.K, cam.dist).reshape(-1, 2)
         _, res_sq = keyframe_geometry.rotation_fit(xy0.astype(np.float64),
                                                    xy1.astype(np.float64))
-        return float(np.sqrt(np.median(res_sq))) * float(cam.K[0, 0])
+        flow_px = np.linalg.norm((self._pts - self._last_step).reshape(-1, 2), axis=1)
+        return float(np.sqrt(np.median(res_sq))) * float(cam.K[0, 0]), float(np.median(flow_px))
 
     def _lost(self, grey: npt.NDArray[np.uint8], decide: Decide, blurred: bool) -> Decision:
         """Tracking is lost: restart tracking here, without a keyframe (no baseline to check)."""
