@@ -59,8 +59,8 @@ def undistort_px(camera: CameraModel, pixels_px: FloatArray) -> FloatArray:
     pts = np.asarray(pixels_px, np.float64).reshape(-1, 1, 2)
     if not camera.has_distortion or len(pts) == 0:
         return pts.reshape(-1, 2).copy()
-    out = cv2.undistortPoints(pts, camera.K, camera.dist, None, camera.K,
-                              criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10))
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10)
+    out = cv2.undistortPoints(pts, camera.K, camera.dist, None, camera.K, criteria=crit)
     return np.asarray(out, np.float64).reshape(-1, 2)
 
 

@@ -6,7 +6,6 @@ import numpy as np
 import numpy.typing as npt
 
 from absscale_ros.core import features as feat
-from absscale_ros.core import twoview
 
 FloatArray = npt.NDArray[np.float64]
 

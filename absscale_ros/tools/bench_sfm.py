@@ -152,7 +152,8 @@ def score(engine: sfm.IncrementalSfm, poses: dict[int, np.ndarray],
         j = int(np.flatnonzero(m.keyframes[kf].vertices.landmark_of == lm_id)[0])
         obj, vid = truth[kf][j]
         p = align.apply(s, R, t, lm.point_world[None])[0]
-        errs.append(float(np.linalg.norm(p - np.array(gt['targets'][obj]['vertices_world_m'][vid]))))
+        true_m = np.array(gt['targets'][obj]['vertices_world_m'][vid])
+        errs.append(float(np.linalg.norm(p - true_m)))
     out['vertices'] = len(errs)
     out['vertices_unique'] = len(sfm_vertices.targets(m)[0])
     if errs:
