@@ -45,6 +45,10 @@ class SheetConfig:
         the same white.
     :param line_work_max_side_px: the line search runs on an image at most this big.
     :param line_max_refine: line hypotheses refined at full resolution, best supported first.
+    :param max_inside_spread: largest distance of the colour just inside one side from the
+        median over the four sides, over the brightest channel of that median (one sheet).
+    :param max_saturation: largest (max - min) / max channel of that median colour (paper is
+        unsaturated; a shaded sheet or a warm light stays well below this).
     """
 
     sheet: str = 'letter'
@@ -63,6 +67,8 @@ class SheetConfig:
     line_candidates: bool = True
     line_work_max_side_px: int = 320
     line_max_refine: int = 3
+    max_inside_spread: float = 0.25
+    max_saturation: float = 0.35
 
     def __post_init__(self) -> None:
         if not 0.0 < self.min_area_frac < 1.0:
@@ -125,7 +131,8 @@ def _masks(work_bgr: npt.NDArray[np.uint8], work_white: npt.NDArray[np.uint8],
     one that differs from the surface mostly in tint, where no grey threshold separates them.
     """
     otsu, _ = cv2.threshold(work_white, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
-    top = float(np.percentile(work_white, 99.5))
+    hist = np.cumsum(np.bincount(work_white.ravel(), minlength=256))
+    top = float(np.searchsorted(hist, 0.995 * hist[-1]))  # 99.5th percentile
     masks = [(work_white > t).astype(np.uint8)
              for t in (otsu, otsu + (top - otsu) / 3.0, otsu + 2.0 * (top - otsu) / 3.0)]
     blurred = cv2.GaussianBlur(work_bgr, (3, 3), 0)
@@ -191,7 +198,7 @@ def _order(corners: Array) -> Array:
 
 
 def refine_quad(image_bgr: npt.NDArray[np.uint8], quad_px: Array, coarse_band_px: float
-                ) -> tuple[Array, Array, Array] | None:
+                ) -> tuple[Array, Array, Array, Array] | None:
     """
     Refine a rough quadrilateral's sides on the colour step across each and intersect them.
 
@@ -199,20 +206,21 @@ def refine_quad(image_bgr: npt.NDArray[np.uint8], quad_px: Array, coarse_band_px
     its own inside-minus-outside colour, so a sheet that is brighter than the desk on one side
     and only differently tinted on another is handled alike.
 
-    :returns: ((4, 2) corners px, (4,) side supports, (4,) colour steps) or None when the
-        sides do not close.
+    :returns: ((4, 2) corners px, (4,) side supports, (4,) colour steps, (4, 3) BGR colour
+        just inside each side) or None when the sides do not close.
     """
     centre = quad_px.mean(axis=0)
     ends = np.stack([quad_px, np.roll(quad_px, -1, axis=0)], axis=1)
     rough = np.array([lines.line_through(p0, p1, centre) for p0, p1 in ends])
     n = int(np.clip(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1).mean() / 4.0, 16, 64))
-    refined, supports, steps = sides.refine(image_bgr, rough, ends, (coarse_band_px, 4.0, 3.0), n)
+    refined, supports, steps, inside = sides.refine(image_bgr, rough, ends,
+                                                    (coarse_band_px, 4.0, 3.0), n)
     corners = lines.quad_corners(list(refined))
     if corners is None or not cv2.isContourConvex(corners.astype(np.float32)):
         return None
     if np.abs(corners - quad_px).max() > 2.0 * coarse_band_px + 4.0:
         return None
-    return corners, supports, steps
+    return corners, supports, steps, inside
 
 
 def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
@@ -272,6 +280,8 @@ def _accept(image_bgr: npt.NDArray[np.uint8], quad_full: Array, band: float, cfg
         return
     if refined[2].min() < cfg.min_contrast:
         return  # not a sheet on a different surface all round
+    if not _one_white_surface(refined[3], cfg):
+        return  # four edges of different things (a table top, its legs, the floor)
     corners = refined[0]
     aspect = rectangle_aspect(corners, K, cfg.focal_frac * max(h, w),
                               np.array([(w - 1) / 2.0, (h - 1) / 2.0]))
@@ -279,6 +289,15 @@ def _accept(image_bgr: npt.NDArray[np.uint8], quad_full: Array, band: float, cfg
         return
     if all(np.abs(corners - c).max() > 4.0 for _, c in found):
         found.append((float(refined[1].mean()), corners))
+
+
+def _one_white_surface(inside_bgr: Array, cfg: SheetConfig) -> bool:
+    """Return True when the colours just inside the four sides are one unsaturated colour."""
+    ref = np.median(inside_bgr, axis=0)
+    level = max(float(ref.max()), 1.0)
+    spread = float(np.linalg.norm(inside_bgr - ref, axis=1).max())
+    return spread <= cfg.max_inside_spread * level and \
+        float(ref.max() - ref.min()) <= cfg.max_saturation * level
 
 
 def _detection(corners: Array, score: float, model: targets.SheetModel

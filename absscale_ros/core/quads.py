@@ -40,6 +40,7 @@ class QuadConfig:
     :param grad_cos: smallest cosine between an edge pixel's gradient and the side normal.
     :param min_support: smallest gradient support of every side, corner to corner.
     :param max_quads: hypotheses returned, best first.
+    :param max_cycles: four-line cycles scored at most (bounds the time in cluttered scenes).
     """
 
     min_side_px: float = 20.0
@@ -54,6 +55,7 @@ class QuadConfig:
     grad_cos: float = 0.9
     min_support: float = 0.7
     max_quads: int = 64
+    max_cycles: int = 4000
 
 
 class EdgeMap:
@@ -187,26 +189,27 @@ def find_quads(work_bgr: npt.NDArray[np.uint8], cfg: QuadConfig) -> tuple[Array,
         return np.zeros((0, 4, 2)), np.zeros((0, 4))
     cum, ts = support_profiles(em, ls, cfg)
     pts, valid, support = _side_table(ls, cum, ts, cfg)
-    quads, sups = [], []
-    for i, k in zip(*np.nonzero(valid.any(axis=1))):
-        if k <= i:
-            continue
+    blocks = []
+    for i, k in zip(*np.nonzero(np.triu(valid.any(axis=1), 1))):
         js = np.flatnonzero(valid[i, :, k])
         ls_ = np.flatnonzero(valid[k, :, i])
-        js, ls_ = js[js > i], ls_[ls_ > i]
+        js, ls_ = js[js > i], ls_[ls_ > i]  # i is the cycle's smallest line index
         if not len(js) or not len(ls_):
             continue
         closed = valid[js][:, k][:, ls_] & valid[ls_][:, i][:, js].T
-        for a, b in zip(*np.nonzero(closed)):
-            j, l_ = js[a], ls_[b]
-            if j >= l_:
-                continue
-            quads.append((pts[i, j], pts[j, k], pts[k, l_], pts[l_, i]))
-            sups.append((support[i, j, k], support[j, k, l_], support[k, l_, i],
-                         support[l_, i, j]))
-    if not quads:
+        a, b = np.nonzero(closed & (js[:, None] < ls_[None, :]))  # one direction per cycle
+        if len(a):
+            blocks.append(np.stack([np.full(len(a), i), js[a], np.full(len(a), k), ls_[b]], 1))
+        if sum(len(x) for x in blocks) >= cfg.max_cycles:
+            break
+    if not blocks:
         return np.zeros((0, 4, 2)), np.zeros((0, 4))
-    q, s = np.array(quads), np.array(sups)
+    c = np.concatenate(blocks)[:cfg.max_cycles]
+    nxt, prv = np.roll(c, -1, axis=1), np.roll(c, 1, axis=1)
+    quads = pts[c, nxt]  # corner of side c[:, m] with the next side
+    quads = np.roll(quads, 1, axis=1)  # corners in order: (l, i), (i, j), (j, k), (k, l)
+    sups = support[prv, c, nxt]
+    q, s = quads, sups
     convex = convex_area(q) > 0
     q, s = q[convex], s[convex]
     order = np.argsort(-s.mean(axis=1))[:cfg.max_quads]

@@ -48,14 +48,14 @@ def _profiles(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array, band
     return centres, offs, samples.reshape(s, n, k, 3).astype(np.float32)
 
 
-def colour_steps(samples: Array) -> Array:
+def side_colours(samples: Array) -> tuple[Array, Array]:
     """
-    Return (S, 3) inside-minus-outside colour of each side: per-channel medians over the
-    middle 60% of the profiles, of the first and the last sample (the band's two ends).
+    Return (S, 3) inside and (S, 3) outside BGR colour of each side: per-channel medians over
+    the middle 60% of the profiles, of the first and the last sample (the band's two ends).
     """
     n = samples.shape[1]
     mid = samples[:, int(0.2 * n):max(int(0.8 * n), int(0.2 * n) + 1)]
-    return np.median(mid[:, :, 0, :], axis=1) - np.median(mid[:, :, -1, :], axis=1)
+    return np.median(mid[:, :, 0, :], axis=1), np.median(mid[:, :, -1, :], axis=1)
 
 
 def _edges(samples: Array, step: Array, centres: Array, offs: Array, normals: Array
@@ -107,7 +107,7 @@ def fit_lines(pts: Array, weights: Array, outward: Array, scale_px: Array,
 
 def refine(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
            bands_px: tuple[float, ...], n: int, min_rel_strength: float = 0.3
-           ) -> tuple[Array, Array, Array]:
+           ) -> tuple[Array, Array, Array, Array]:
     """
     Refine S sides on the full-resolution image, coarse band to fine band.
 
@@ -118,17 +118,19 @@ def refine(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
     :param n: profiles per side.
     :returns: ((S, 3) refined lines, (S,) support: fraction of profiles whose edge is at least
         ``min_rel_strength`` of the side's median strength and within 1 px (or 0.5% of the
-        side) of the refined line, (S,) colour step norm across each side, 0-255 units).
+        side) of the refined line, (S,) colour step norm across each side, 0-255 units,
+        (S, 3) BGR colour just inside each side).
     """
     lines_ = lines_.copy()
     length = np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1)
     tol = np.maximum(1.0, 0.005 * length)
-    step = np.zeros((len(lines_), 3))
+    step = inside = np.zeros((len(lines_), 3))
     support = np.zeros(len(lines_))
     for i, band in enumerate(bands_px):
         centres, offs, samples = _profiles(image_bgr, lines_, ends, band, n)
         if i == 0:
-            step = colour_steps(samples)
+            inside, outside = side_colours(samples)
+            step = inside - outside
         pts, strength = _edges(samples, step, centres, offs, lines_[:, :2])
         med = np.median(np.where(strength > 0, strength, np.nan), axis=1)
         keep = (strength > 0) & (strength >= min_rel_strength * np.nan_to_num(med)[:, None])
@@ -138,4 +140,4 @@ def refine(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
         lines_[usable] = fitted[usable]
         near = np.abs(np.einsum('snk,sk->sn', pts, lines_[:, :2]) + lines_[:, None, 2])
         support = np.where(usable, (keep & (near < tol[:, None])).sum(axis=1) / n, 0.0)
-    return lines_, support, np.linalg.norm(step, axis=1)
+    return lines_, support, np.linalg.norm(step, axis=1), inside
