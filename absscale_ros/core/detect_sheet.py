@@ -49,6 +49,8 @@ class SheetConfig:
         median over the four sides, over the brightest channel of that median (one sheet).
     :param max_saturation: largest (max - min) / max channel of that median colour (paper is
         unsaturated; a shaded sheet or a warm light stays well below this).
+    :param max_outside_spread: the same spread test just outside the sides (the surface the
+        sheet lies on), looser: shadows and a second surface at one side are common.
     """
 
     sheet: str = 'letter'
@@ -69,6 +71,7 @@ class SheetConfig:
     line_max_refine: int = 3
     max_inside_spread: float = 0.25
     max_saturation: float = 0.35
+    max_outside_spread: float = 0.5
 
     def __post_init__(self) -> None:
         if not 0.0 < self.min_area_frac < 1.0:
@@ -198,7 +201,7 @@ def _order(corners: Array) -> Array:
 
 
 def refine_quad(image_bgr: npt.NDArray[np.uint8], quad_px: Array, coarse_band_px: float
-                ) -> tuple[Array, Array, Array, Array] | None:
+                ) -> tuple[Array, Array, Array, Array, Array] | None:
     """
     Refine a rough quadrilateral's sides on the colour step across each and intersect them.
 
@@ -207,20 +210,20 @@ def refine_quad(image_bgr: npt.NDArray[np.uint8], quad_px: Array, coarse_band_px
     and only differently tinted on another is handled alike.
 
     :returns: ((4, 2) corners px, (4,) side supports, (4,) colour steps, (4, 3) BGR colour
-        just inside each side) or None when the sides do not close.
+        just inside each side, (4, 3) just outside) or None when the sides do not close.
     """
     centre = quad_px.mean(axis=0)
     ends = np.stack([quad_px, np.roll(quad_px, -1, axis=0)], axis=1)
     rough = np.array([lines.line_through(p0, p1, centre) for p0, p1 in ends])
     n = int(np.clip(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1).mean() / 4.0, 16, 64))
-    refined, supports, steps, inside = sides.refine(image_bgr, rough, ends,
-                                                    (coarse_band_px, 4.0, 3.0), n)
+    refined, supports, steps, inside, outside = sides.refine(
+        image_bgr, rough, ends, (coarse_band_px, 4.0, 3.0), n)
     corners = lines.quad_corners(list(refined))
     if corners is None or not cv2.isContourConvex(corners.astype(np.float32)):
         return None
     if np.abs(corners - quad_px).max() > 2.0 * coarse_band_px + 4.0:
         return None
-    return corners, supports, steps, inside
+    return corners, supports, steps, inside, outside
 
 
 def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
@@ -280,8 +283,10 @@ def _accept(image_bgr: npt.NDArray[np.uint8], quad_full: Array, band: float, cfg
         return
     if refined[2].min() < cfg.min_contrast:
         return  # not a sheet on a different surface all round
-    if not _one_white_surface(refined[3], cfg):
+    if not _one_colour(refined[3], cfg.max_inside_spread, cfg.max_saturation):
         return  # four edges of different things (a table top, its legs, the floor)
+    if not _one_colour(refined[4], cfg.max_outside_spread, 1.0):
+        return  # a sheet lies on one surface: wall between table legs, floor below
     corners = refined[0]
     aspect = rectangle_aspect(corners, K, cfg.focal_frac * max(h, w),
                               np.array([(w - 1) / 2.0, (h - 1) / 2.0]))
@@ -291,13 +296,13 @@ def _accept(image_bgr: npt.NDArray[np.uint8], quad_full: Array, band: float, cfg
         found.append((float(refined[1].mean()), corners))
 
 
-def _one_white_surface(inside_bgr: Array, cfg: SheetConfig) -> bool:
-    """Return True when the colours just inside the four sides are one unsaturated colour."""
-    ref = np.median(inside_bgr, axis=0)
+def _one_colour(bgr: Array, max_spread: float, max_saturation: float) -> bool:
+    """Return True when (4, 3) side colours are one colour, no more saturated than given."""
+    ref = np.median(bgr, axis=0)
     level = max(float(ref.max()), 1.0)
-    spread = float(np.linalg.norm(inside_bgr - ref, axis=1).max())
-    return spread <= cfg.max_inside_spread * level and \
-        float(ref.max() - ref.min()) <= cfg.max_saturation * level
+    spread = float(np.linalg.norm(bgr - ref, axis=1).max())
+    return spread <= max_spread * level and \
+        float(ref.max() - ref.min()) <= max_saturation * level
 
 
 def _detection(corners: Array, score: float, model: targets.SheetModel

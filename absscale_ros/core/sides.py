@@ -107,7 +107,7 @@ def fit_lines(pts: Array, weights: Array, outward: Array, scale_px: Array,
 
 def refine(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
            bands_px: tuple[float, ...], n: int, min_rel_strength: float = 0.3
-           ) -> tuple[Array, Array, Array, Array]:
+           ) -> tuple[Array, Array, Array, Array, Array]:
     """
     Refine S sides on the full-resolution image, coarse band to fine band.
 
@@ -119,12 +119,12 @@ def refine(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
     :returns: ((S, 3) refined lines, (S,) support: fraction of profiles whose edge is at least
         ``min_rel_strength`` of the side's median strength and within 1 px (or 0.5% of the
         side) of the refined line, (S,) colour step norm across each side, 0-255 units,
-        (S, 3) BGR colour just inside each side).
+        (S, 3) BGR colour just inside each side, (S, 3) just outside).
     """
     lines_ = lines_.copy()
     length = np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1)
     tol = np.maximum(1.0, 0.005 * length)
-    step = inside = np.zeros((len(lines_), 3))
+    step = inside = outside = np.zeros((len(lines_), 3))
     support = np.zeros(len(lines_))
     for i, band in enumerate(bands_px):
         centres, offs, samples = _profiles(image_bgr, lines_, ends, band, n)
@@ -140,4 +140,4 @@ def refine(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
         lines_[usable] = fitted[usable]
         near = np.abs(np.einsum('snk,sk->sn', pts, lines_[:, :2]) + lines_[:, None, 2])
         support = np.where(usable, (keep & (near < tol[:, None])).sum(axis=1) / n, 0.0)
-    return lines_, support, np.linalg.norm(step, axis=1), inside
+    return lines_, support, np.linalg.norm(step, axis=1), inside, outside
