@@ -29,7 +29,9 @@ class CubeConfig:
     Hue ranges are in degrees [0, 360) and wrap when ``lo > hi`` (red). The paper's Fig. 2
     colours are not given numerically; the ranges are wide enough for shade and sun.
 
-    :param min_area_frac: smallest face area over image area (paper: 0.005).
+    :param min_area_frac: smallest cube area (its visible faces) over image area (paper: 0.005).
+    :param min_face_area_frac: smallest area of one face over image area: a face seen edge-on
+        is far smaller than the cube it belongs to.
     :param roundness_min: lower roundness bound, eq. 1 (paper: 0.1).
     :param roundness_max: upper roundness bound, eq. 1 (paper: 0.85).
     :param min_solidity: smallest face area over its convex hull area.
@@ -51,6 +53,7 @@ class CubeConfig:
     sat_min: float = 0.35
     val_min: float = 0.12
     min_area_frac: float = 0.005
+    min_face_area_frac: float = 0.0003
     roundness_min: float = 0.1
     roundness_max: float = 0.85
     min_solidity: float = 0.9
@@ -106,7 +109,7 @@ def _face_quads(mask: npt.NDArray[np.uint8], cfg: CubeConfig
     """Return (rough quad, contour) of mask components that pass the paper's tests."""
     kernel = np.ones((3, 3), np.uint8)
     mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, kernel, iterations=cfg.opening_iterations)
-    min_area = cfg.min_area_frac * mask.shape[0] * mask.shape[1]
+    min_area = cfg.min_face_area_frac * mask.shape[0] * mask.shape[1]
     out: list[tuple[Array, npt.NDArray[np.int32]]] = []
     if cv2.countNonZero(mask) < min_area:
         return out
@@ -250,6 +253,9 @@ def detect_cubes(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
         colours = {faces[f].colour for f in members}
         if len(members) < cfg.min_faces or len(colours) < len(members):
             continue  # opposite faces are never both visible: same colour twice is not a cube
+        area = sum(cv2.contourArea(faces[f].corners_px.astype(np.float32)) for f in members)
+        if area < cfg.min_area_frac * image_bgr.shape[0] * image_bgr.shape[1]:
+            continue  # the paper's area test, on the whole cube
         out.append(_cube_detection([faces[f] for f in members],
                                    [labels[4 * f:4 * f + 4] for f in members]))
     out.sort(key=lambda d: -d.score)
