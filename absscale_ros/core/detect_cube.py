@@ -164,7 +164,8 @@ def _refine_faces(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array
     side_lines = np.concatenate([ls for _, ls, _ in rough])
     ends = np.concatenate([np.stack([q, np.roll(q, -1, axis=0)], axis=1) for _, _, q in rough])
     n = int(np.clip(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1).max() / 3.0, 12, 48))
-    refined, supports, steps, _, _ = sides.refine(image_bgr, side_lines, ends, (4.0, 2.5), n)
+    refined, supports, steps, _, _ = sides.refine(image_bgr, side_lines, ends,
+                                                  (6.0, 4.0, 2.5), n)
     faces = []
     for f, (colour, hough, _) in enumerate(rough):
         ls, sup = refined[4 * f:4 * f + 4], supports[4 * f:4 * f + 4]
