@@ -14,7 +14,7 @@ from absscale_ros.sim import camera as simcam
 from absscale_ros.sim.render import BLOCK, F32, FloatArray
 
 MAX_BLUR_SAMPLES = 6
-BLUR_SPACING_PX = 2.0  # sub-exposure samples at most this far apart along a streak
+BLUR_SPACING_PX = 2.5  # sub-exposure samples at most this far apart along a streak
 NOISE_MARGIN = 64  # noise bank border: each frame reads the bank at a random offset
 
 
@@ -72,7 +72,7 @@ class CameraEffects:
         streak = ends[1] - ends[0]
         finite = np.isfinite(streak).all(axis=2)
         length = float(np.max(np.linalg.norm(streak[finite], axis=1))) if finite.any() else 0.0
-        if length < 0.35:
+        if length < 0.5:
             return colour, length
         n = int(min(MAX_BLUR_SAMPLES ** 2, np.ceil(length / BLUR_SPACING_PX) + 1))
         h, w = self._camera.height, self._camera.width

@@ -161,7 +161,8 @@ def validate(gt: dict[str, object]) -> None:
                 'point_pairs', 'pure_rotation_segments', 'frames'):
         _need(key in gt, f'missing {key!r}')
     cam = gt['camera']
-    _need(np.array(cam['K']).shape == (3, 3) and len(cam['D']) == 5, 'camera K / D')  # type: ignore
+    _need(np.array(cam['K']).shape == (3, 3)  # type: ignore[index]
+          and len(cam['D']) == 5, 'camera K / D')  # type: ignore[index]
     w, h = cam['width'], cam['height']  # type: ignore[index]
     targets = gt['targets']
     nverts = [len(t['vertices_world_m']) for t in targets]  # type: ignore[attr-defined,index]

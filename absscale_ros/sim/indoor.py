@@ -6,7 +6,8 @@ from absscale_ros.sim.scene import Material, Scene, SceneBuilder
 
 FLOORS = [Material('parquet', (1.0, 1.0, 1.0), 0.0015), Material('tiles', (1.0, 1.0, 1.0), 0.0015),
           Material('carpet', (1.0, 1.0, 1.0), 0.0008)]
-WALLS = [Material('plaster', (0.95, 0.93, 0.88), 0.002), Material('wallpaper', (1.0, 1.0, 1.0), 0.0015),
+WALLS = [Material('plaster', (0.95, 0.93, 0.88), 0.002),
+         Material('wallpaper', (1.0, 1.0, 1.0), 0.0015),
          Material('plaster', (0.85, 0.9, 0.95), 0.002)]
 CEILING = Material('ceiling', (1.0, 1.0, 1.0), 0.0025)
 DESK_DARK = Material('wood_dark', (1.0, 1.0, 1.0), 0.001)
@@ -27,7 +28,7 @@ def build(seed: int, variant: dict[str, object], rng: np.random.Generator) -> Sc
     lx, ly, lz = rng.uniform(3.5, 7.0), rng.uniform(4.5, 7.2), rng.uniform(2.5, 3.0)
     walls = [WALLS[rng.integers(len(WALLS))] for _ in range(4)]
     b.box([lx / 2, ly / 2, lz / 2], [lx, ly, lz], 0.0,
-          walls + [FLOORS[rng.integers(len(FLOORS))], CEILING], inward=True, pairs=False)
+          walls + [FLOORS[rng.integers(len(FLOORS))], CEILING], inward=True, pairs=False, skip=())
     b.pair([0.0, 0.0, 0.0], [lx, 0.0, 0.0], 'room width at floor', 'scene')
     b.pair([0.0, 0.0, 0.0], [0.0, ly, 0.0], 'room depth at floor', 'scene')
     # Desk against the far wall (y = ly); the camera walks in from the near wall.
@@ -35,7 +36,7 @@ def build(seed: int, variant: dict[str, object], rng: np.random.Generator) -> Sc
     dx = rng.uniform(0.9 + dw / 2, max(0.9 + dw / 2, lx - 0.9 - dw / 2))
     dy = ly - dd / 2 - 0.05
     desk_mat = DESK_LIGHT if variant['support'] == 'light_desk' else DESK_DARK
-    b.box([dx, dy, dh - 0.015], [dw, dd, 0.03], 0.0, desk_mat, label='desk top')
+    b.box([dx, dy, dh - 0.015], [dw, dd, 0.03], 0.0, desk_mat, label='desk top', skip=())
     for sx in (-1, 1):
         for sy in (-1, 1):
             b.box([dx + sx * (dw / 2 - 0.05), dy + sy * (dd / 2 - 0.05), (dh - 0.03) / 2],
@@ -45,8 +46,8 @@ def build(seed: int, variant: dict[str, object], rng: np.random.Generator) -> Sc
         centre = np.array([np.clip(dx + rng.uniform(-0.8, 0.8), 0.8, lx - 0.8),
                            dy - dd / 2 - rng.uniform(0.6, 1.2), 0.0003])
     else:
-        centre = np.array([dx + rng.uniform(-0.3, 0.3) * (dw - 0.35), dy + rng.uniform(-0.08, 0.02),
-                           dh + 0.0003])
+        centre = np.array([dx + rng.uniform(-0.3, 0.3) * (dw - 0.35),
+                           dy + rng.uniform(-0.08, 0.02), dh + 0.0003])
     sheet = targets.sheet(kind, centre, rng.uniform(-0.5, 0.5) + rng.choice([0.0, np.pi / 2]))
     b.add_target(sheet, [targets.PAPER])
     _furniture(b, rng, lx, ly, lz, dx, dw)

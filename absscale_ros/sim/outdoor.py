@@ -5,13 +5,16 @@ from absscale_ros.sim import targets
 from absscale_ros.sim.scene import FloatArray, Material, rot_z, Scene, SceneBuilder
 
 GRASS = Material('grass', (1.0, 1.0, 1.0), 0.004)
-FACADES = [Material('bricks', (1.0, 1.0, 1.0), 0.0033), Material('concrete', (1.0, 1.0, 1.0), 0.004),
-           Material('pavers', (1.0, 0.95, 0.9), 0.005), Material('plaster', (0.95, 0.85, 0.7), 0.01)]
-GROUNDS = [Material('pavers', (1.0, 1.0, 1.0), 0.0025), Material('asphalt', (1.0, 1.0, 1.0), 0.002),
+FACADES = [Material('bricks', (1.0, 1.0, 1.0), 0.0033),
+           Material('concrete', (1.0, 1.0, 1.0), 0.004),
+           Material('pavers', (1.0, 0.95, 0.9), 0.005),
+           Material('plaster', (0.95, 0.85, 0.7), 0.01)]
+GROUNDS = [Material('pavers', (1.0, 1.0, 1.0), 0.0025),
+           Material('asphalt', (1.0, 1.0, 1.0), 0.002),
            Material('concrete', (0.95, 0.95, 0.95), 0.003)]
-WINDOW = Material('window', (1.0, 1.0, 1.0), 0.0015)
-NEUTRAL_PAINTS = [(0.25, 0.35, 0.6), (0.5, 0.5, 0.52), (0.15, 0.15, 0.16), (0.85, 0.86, 0.88),
-                  (0.2, 0.45, 0.35)]
+WINDOW = Material('window', (1.0, 1.0, 1.0), 0.004)
+NEUTRAL_PAINTS = [(0.3, 0.4, 0.65), (0.55, 0.55, 0.57), (0.3, 0.3, 0.32), (0.85, 0.86, 0.88),
+                  (0.25, 0.5, 0.4)]
 
 
 def build(seed: int, variant: dict[str, object], rng: np.random.Generator) -> Scene:
@@ -28,7 +31,8 @@ def build(seed: int, variant: dict[str, object], rng: np.random.Generator) -> Sc
     approach = rng.uniform(0.0, 2.0 * np.pi)
     orbit = np.deg2rad(rng.uniform(50.0, 110.0)) * rng.choice([-1.0, 1.0])
     b.walk = {'target_x': 0.0, 'target_y': 0.0, 'target_z': 0.4, 'approach_rad': approach,
-              'orbit_rad': orbit, 'far_m': rng.uniform(20.0, 25.0), 'mid_m': rng.uniform(8.0, 11.0),
+              'orbit_rad': orbit, 'far_m': rng.uniform(20.0, 25.0),
+              'mid_m': rng.uniform(8.0, 11.0),
               'near_m': rng.uniform(3.0, 4.5), 'eye_height_m': rng.uniform(1.45, 1.7),
               'max_speed_mps': 2.2, 'room_x0': -1e3, 'room_x1': 1e3, 'room_y0': -1e3,
               'room_y1': 1e3}
@@ -37,10 +41,10 @@ def build(seed: int, variant: dict[str, object], rng: np.random.Generator) -> Sc
 
     # Ground: a plaza at z = 0 (where the cube stands) inside a lawn 3 cm lower.
     half = rng.uniform(18.0, 26.0)
-    plaza = np.array([[-half, -half, 0.0], [half, -half, 0.0], [half, half, 0.0], [-half, half, 0.0]])
-    b.face(plaza, GROUNDS[rng.integers(len(GROUNDS))], toward_m=[0.0, 0.0, 10.0])
-    b.face(np.array([[-300, -300, -0.03], [300, -300, -0.03], [300, 300, -0.03], [-300, 300, -0.03]]),
-           GRASS, toward_m=[0.0, 0.0, 10.0])
+    square = np.array([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0]])
+    b.face(square * [half, half, 1.0], GROUNDS[rng.integers(len(GROUNDS))],
+           toward_m=[0.0, 0.0, 10.0])
+    b.face(square * [300.0, 300.0, 1.0] - [0.0, 0.0, 0.03], GRASS, toward_m=[0.0, 0.0, 10.0])
     _buildings(b, rng)
     placed: list[tuple[FloatArray, float]] = [(np.zeros(2), 1.5)]
     for k in range(int(rng.integers(12, 18))):
@@ -50,8 +54,8 @@ def build(seed: int, variant: dict[str, object], rng: np.random.Generator) -> Sc
     if variant['occluded']:
         az = approach + 0.5 * orbit + rng.uniform(-0.2, 0.2)
         pos = 1.25 * np.array([np.cos(az), np.sin(az)])
-        b.box([pos[0], pos[1], 0.8], [0.3, 0.3, 1.6], az, Material('concrete', (0.8, 0.8, 0.8), 0.002),
-              label='occluding post')
+        b.box([pos[0], pos[1], 0.8], [0.3, 0.3, 1.6], az,
+              Material('concrete', (0.8, 0.8, 0.8), 0.002), label='occluding post')
     sun_az, sun_el = rng.uniform(0.0, 2.0 * np.pi), np.deg2rad(rng.uniform(25.0, 60.0))
     light = np.array([np.cos(sun_az) * np.cos(sun_el), np.sin(sun_az) * np.cos(sun_el),
                       np.sin(sun_el)])
@@ -64,21 +68,22 @@ def _buildings(b: SceneBuilder, rng: np.random.Generator) -> None:
     for k in range(count):
         az = 2.0 * np.pi * (k + rng.uniform(-0.25, 0.25)) / count
         r = rng.uniform(32.0, 45.0)
-        width, depth, height = rng.uniform(12.0, 24.0), rng.uniform(8.0, 14.0), rng.uniform(6.0, 16.0)
+        width, depth = rng.uniform(12.0, 24.0), rng.uniform(8.0, 14.0)
+        height = rng.uniform(6.0, 16.0)
         centre = np.array([(r + depth / 2) * np.cos(az), (r + depth / 2) * np.sin(az), height / 2])
         mat = FACADES[rng.integers(len(FACADES))]
-        b.box(centre, [depth, width, height], az, mat, label=f'building {k}', pairs=False)
+        # Only the front and the sides can be seen from the plaza.
+        b.box(centre, [depth, width, height], az, mat, label=f'building {k}', pairs=False,
+              skip=(1, 4, 5))
         R = rot_z(az)
-        rows, cols = max(1, int(height // 3.2)), max(1, int(width // 3.0))
-        for i in range(rows):
-            for j in range(cols):
-                y = (j + 0.5) * width / cols - width / 2
-                z = (i + 0.5) * height / rows
-                local = np.array([[0, y - 0.7, z - 0.8], [0, y + 0.7, z - 0.8],
-                                  [0, y + 0.7, z + 0.8], [0, y - 0.7, z + 0.8]])
-                local[:, 0] = -depth / 2 - 0.04
-                pts = np.array([centre[0], centre[1], 0.0]) + local @ R.T
-                b.face(pts, WINDOW, toward_m=[0.0, 0.0, 1.5])
+        storeys = min(4, max(1, int(height // 3.2)))
+        for i in range(storeys):  # one ribbon window per storey
+            z = (i + 0.5) * height / storeys
+            y0, y1 = -width / 2 + 1.0, width / 2 - 1.0
+            local = np.array([[-depth / 2 - 0.04, y0, z - 0.7], [-depth / 2 - 0.04, y1, z - 0.7],
+                              [-depth / 2 - 0.04, y1, z + 0.7], [-depth / 2 - 0.04, y0, z + 0.7]])
+            pts = np.array([centre[0], centre[1], 0.0]) + local @ R.T
+            b.face(pts, WINDOW, toward_m=[0.0, 0.0, 1.5])
 
 
 def _free_spot(rng: np.random.Generator, placed: list[tuple[FloatArray, float]], radius: float,
@@ -113,9 +118,10 @@ def _random_object(b: SceneBuilder, rng: np.random.Generator,
         return
     mat = {'crate': Material('cardboard', (1.0, 1.0, 1.0), 0.0015),
            'block': Material('concrete', (1.0, 1.0, 1.0), 0.001),
-           'bin': Material('paint', NEUTRAL_PAINTS[rng.integers(len(NEUTRAL_PAINTS))], 0.002),
+           'bin': Material('concrete', NEUTRAL_PAINTS[rng.integers(len(NEUTRAL_PAINTS))], 0.002),
            'bush': Material('foliage', (1.0, 1.0, 1.0), 0.003),
-           'car': Material('paint', NEUTRAL_PAINTS[rng.integers(len(NEUTRAL_PAINTS))], 0.004),
+           'car': Material('cardboard', NEUTRAL_PAINTS[rng.integers(len(NEUTRAL_PAINTS))],
+                           0.004),
            'pallet': Material('wood_dark', (1.1, 1.0, 0.9), 0.0015),
            'post': Material('concrete', (0.7, 0.7, 0.7), 0.002)}[kind]
     b.box([pos[0], pos[1], size[2] / 2], size, rng.uniform(0, np.pi), mat, label=f'{kind} {k}')

@@ -274,7 +274,7 @@ class Renderer:
                 mask=sky.reshape(h, w).view(np.uint8))
 
     def _sky(self, up: F32) -> F32:
-        """Hazy blue gradient with the ray's world z; indoor scenes are closed and never show it."""
+        """Hazy blue gradient with the ray's world z (indoor scenes are closed: no sky)."""
         up = np.sqrt(np.clip(up, 0.0, 1.0))[:, None]
         horizon = np.array([0.85, 0.88, 0.92], np.float32)
         zenith = np.array([0.45, 0.62, 0.88], np.float32)

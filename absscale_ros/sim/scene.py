@@ -121,7 +121,7 @@ class SceneBuilder:
 
     def box(self, centre_m: FloatArray, size_m: FloatArray, yaw_rad: float,
             mat: Material | list[Material], inward: bool = False, label: str = '',
-            pairs: bool = True) -> FloatArray:
+            pairs: bool = True, skip: tuple[int, ...] = (4,)) -> FloatArray:
         """
         Add a box standing upright (6 faces); returns its (8, 3) corners.
 
@@ -130,10 +130,14 @@ class SceneBuilder:
         :param mat: one material, or six for -x +x -y +y -z +z.
         :param inward: normals face the inside (a room).
         :param pairs: record three box edges as scene point pairs with true distances.
+        :param skip: faces never seen, left out (default: the bottom, standing on the floor);
+            the renderer handles at most 255 faces.
         """
         mats = mat if isinstance(mat, list) else [mat] * 6
         corners = box_corners(np.asarray(centre_m, float), np.asarray(size_m, float), yaw_rad)
         for fid, (axis, sign) in enumerate(CUBE_FACES):
+            if fid in skip:
+                continue
             ids = face_vertex_ids(axis, sign)
             outward = corners[list(ids)].mean(axis=0) - np.asarray(centre_m, float)
             toward = np.asarray(centre_m, float) + (-outward if inward else 2.0 * outward)
@@ -223,7 +227,8 @@ def face_vertex_ids(axis: int, sign: int) -> tuple[int, int, int, int]:
     right_handed = (axis - a) % 3 == 2
     if (sign > 0) != right_handed:
         loop = loop[::-1]
-    return tuple((bit << axis) | (i << a) | (j << b) for i, j in loop)  # type: ignore[return-value]
+    ids = tuple((bit << axis) | (i << a) | (j << b) for i, j in loop)
+    return ids  # type: ignore[return-value]
 
 
 def rot_z(angle_rad: float) -> FloatArray:

@@ -144,7 +144,7 @@ def _concrete(rng: np.random.Generator) -> F32:
     g = 0.62 + 0.18 * _fractal(rng, 4, 256) + 0.08 * _noise(rng, 512)
     holes = _noise(rng, 128) > 0.93
     g = g - 0.25 * holes - 0.2 * (joint < 2)
-    return _rgb(g.astype(np.float32), (0.95, 0.95, 0.92))
+    return _rgb(_cracks(rng, g.astype(np.float32), 12, 0.25), (0.95, 0.95, 0.92))
 
 
 def _grass(rng: np.random.Generator) -> F32:
@@ -157,10 +157,28 @@ def _grass(rng: np.random.Generator) -> F32:
     return out * (1 - w) + dry * w
 
 
+def _cracks(rng: np.random.Generator, g: F32, count: int, shade: float) -> F32:
+    """Dark random-walk cracks: sharp, world-fixed features at every distance."""
+    out = g.copy()
+    for _ in range(count):
+        p = rng.uniform(0, TILE, 2)
+        heading = rng.uniform(0, 2 * np.pi)
+        pts = [p.copy()]
+        for _ in range(int(rng.integers(8, 30))):
+            heading += rng.normal(0.0, 0.5)
+            p = p + rng.uniform(6, 20) * np.array([np.cos(heading), np.sin(heading)])
+            pts.append(p.copy())
+        poly = np.round(np.array(pts)).astype(np.int32) % TILE  # stays inside; wraps jump
+        cv2.polylines(out, [poly], False, float(shade), int(rng.integers(1, 4)))
+    return out
+
+
 def _asphalt(rng: np.random.Generator) -> F32:
-    g = 0.40 + 0.10 * _fractal(rng, 8, 128) + 0.18 * (_noise(rng, 512) - 0.5)
+    g = 0.40 + 0.16 * _fractal(rng, 4, 64) + 0.16 * (_noise(rng, 512) - 0.5)
     g = g + 0.25 * (_noise(rng, 512) > 0.85)
-    return _rgb(g.astype(np.float32), (1.0, 1.0, 1.0))
+    patches = _noise(rng, 8) > 0.7  # repaired patches: darker, with sharp borders
+    g = np.where(patches, g * 0.8, g).astype(np.float32)
+    return _rgb(_cracks(rng, g, 25, 0.15), (1.0, 1.0, 1.0))
 
 
 def _pavers(rng: np.random.Generator) -> F32:
@@ -194,7 +212,8 @@ def _foliage(rng: np.random.Generator) -> F32:
 
 TEXTURES = {
     'plaster': _plaster, 'ceiling': _ceiling, 'wallpaper': _wallpaper,
-    'parquet': lambda rng: _planks(rng, 0.62, 0.08), 'wood_dark': lambda rng: _planks(rng, 0.42, 0.04),
+    'parquet': lambda rng: _planks(rng, 0.62, 0.08),
+    'wood_dark': lambda rng: _planks(rng, 0.42, 0.04),
     'tiles': _tiles, 'carpet': _carpet, 'laminate': _laminate, 'cardboard': _cardboard,
     'books': _books, 'bricks': _bricks, 'concrete': _concrete, 'grass': _grass,
     'asphalt': _asphalt, 'pavers': _pavers, 'paper': _paper, 'paint': _paint,

@@ -188,9 +188,9 @@ def _draw(w: dict[str, float], target: FloatArray, duration_s: float,
         duration_s, times, target, positions, (yaw0, 0.0, 0.0, 0.0, 0.0, 0.0),
         np.deg2rad(rng.uniform(50.0, 75.0)) * rng.choice([-1.0, 1.0]),
         _sines(rng, np.deg2rad(6.0), 0.05, 0.25), _sines(rng, np.deg2rad(0.35), 1.0, 6.0),
-        _sines(rng, 0.002, 2.0, 7.0), _Sines(np.array([[0.008, 0.008, 0.015]]),
-                                              np.array([[0.9, 0.9, 1.8]]),
-                                              rng.uniform(0.0, 2.0 * np.pi, (1, 3))),
+        _sines(rng, 0.002, 2.0, 7.0),
+        _Sines(np.array([[0.008, 0.008, 0.015]]), np.array([[0.9, 0.9, 1.8]]),
+               rng.uniform(0.0, 2.0 * np.pi, (1, 3))),
         (az_arrive, az_end, r_arrive, r_end))
 
 

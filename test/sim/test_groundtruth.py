@@ -158,7 +158,8 @@ def test_pure_rotation_segments_keep_the_centre(outdoor_bag: tuple, indoor_bag: 
         for first, last in segs:
             assert last > first
             centres = np.array([gt['frames'][i]['T_world_cam'] for i in range(first, last + 1)])
-            assert np.array_equal(centres[:, :3, 3], np.repeat(centres[:1, :3, 3], len(centres), 0))
+            assert np.array_equal(centres[:, :3, 3],
+                                  np.repeat(centres[:1, :3, 3], len(centres), axis=0))
             angles = [np.arccos(np.clip((np.trace(a[:3, :3].T @ centres[0, :3, :3]) - 1) / 2,
                                         -1, 1)) for a in centres]
             assert max(angles) > np.deg2rad(5.0)

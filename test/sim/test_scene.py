@@ -84,3 +84,10 @@ def test_unknown_scene_and_variant_raise() -> None:
         scenes.build_scene('indoor_paper', 0, {'colour': 'blue'})
     with pytest.raises(ValueError):
         scenes.build_scene('indoor_paper', 0, {'support': 'ceiling'})
+
+
+@pytest.mark.parametrize('name', ['indoor_paper', 'outdoor_cube'])
+def test_scenes_fit_the_renderer(name: str) -> None:
+    """The renderer gathers per-face data with 8-bit ids: at most 255 faces per scene."""
+    for seed in range(16):
+        assert len(scenes.build_scene(name, seed).normals) <= 255
