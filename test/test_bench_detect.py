@@ -69,6 +69,6 @@ def test_bench_detect_figures(tmp_path, capsys):
     assert fig['frames_without_target'] == 1 and fig['false_vertex_frames_pct'] == 0.0
     assert fig['time_ms']['frames'] == 4
     args = type('A', (), {'bags': [str(bag)], 'target': 'from-gt', 'max_frames': 0,
-                          'json': False})
+                          'json': False, 'threads': 1})
     assert bench_detect.run(args) == 0
     assert 'Table 2' in capsys.readouterr().out
