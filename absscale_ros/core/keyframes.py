@@ -34,8 +34,8 @@ class KeyframeConfig:
     :param max_features: corners detected in each keyframe.
     :param min_feature_distance_px: spacing of those corners, at tracking scale.
     :param blur_window: frames in the running median of the sharpness score.
-    :param min_sharpness_ratio: a frame whose Laplacian variance is below this fraction of the
-        running median is blurred.
+    :param min_sharpness_ratio: a frame whose Laplacian variance (on the tracking image
+        reduced four times) is below this fraction of the running median is blurred.
     :param min_tracked_ratio: a keyframe is due when fewer than this fraction of the last
         keyframe's corners are still tracked.
     :param max_track_error: largest KLT residual (mean absolute grey-level difference over the
@@ -51,11 +51,12 @@ class KeyframeConfig:
     :param min_target_area: target area / image area for a frame to count as showing it.
     :param min_parallax_px: median parallax left after removing the best pure rotation
         (tracking scale) below which the motion counts as degenerate.
-    :param min_step_parallax_px: parallax between the previous frame and a keyframe candidate
-        that no rotation explains, px at tracking scale; below it the camera is turning on the
-        spot (or standing still) and the candidate waits.
-    :param min_step_parallax_fraction: the same test relative to the frame-to-frame corner
-        motion: a fast pan blurs the corners, and KLT noise grows with the motion.
+    :param min_turn_flow_px: frame-to-frame corner motion (tracking scale) above which the
+        camera may be turning on the spot, see next.
+    :param min_step_parallax_fraction: a candidate whose frame-to-frame parallax left after
+        the best pure rotation is below this fraction of its frame-to-frame motion is turning
+        on the spot (inside a pure rotation every frame shares the centre of the frame that
+        started it) and waits.
     :param sigma_px: corner position noise at tracking scale, px (GRIC and RANSAC).
     :param min_inliers: two-view inliers needed to trust the geometry.
     """
@@ -63,7 +64,7 @@ class KeyframeConfig:
     track_width_px: int = 640
     max_features: int = 150
     min_feature_distance_px: float = 12.0
-    blur_window: int = 15
+    blur_window: int = 45
     min_sharpness_ratio: float = 0.6
     min_tracked_ratio: float = 0.5
     max_track_error: float = 20.0
@@ -75,7 +76,7 @@ class KeyframeConfig:
     no_target_factor: float = 1.5
     min_target_area: float = 0.005
     min_parallax_px: float = 3.0
-    min_step_parallax_px: float = 0.3
+    min_turn_flow_px: float = 3.0
     min_step_parallax_fraction: float = 0.1
     sigma_px: float = 1.0
     min_inliers: int = 15
@@ -92,10 +93,10 @@ class KeyframeConfig:
         if self.lost_tracks < 5 or self.min_inliers < 5 or self.no_target_factor < 1.0:
             raise ValueError('lost_tracks >= 5, min_inliers >= 5, no_target_factor >= 1')
         if min(self.sigma_px, self.max_track_error) <= 0.0 or min(
-                self.min_flow_px, self.min_parallax_px, self.min_step_parallax_px,
+                self.min_flow_px, self.min_parallax_px, self.min_turn_flow_px,
                 self.min_step_parallax_fraction, self.min_target_area) < 0.0:
             raise ValueError('sigma_px, max_track_error > 0; min_flow_px, min_parallax_px, '
-                             'min_step_parallax_px, min_target_area >= 0')
+                             'min_turn_flow_px, min_target_area >= 0')
 
 
 @dataclass(frozen=True)
@@ -182,7 +183,9 @@ class KeyframeSelector:
         return self._cams[1]
 
     def _sharpness_ratio(self, grey: npt.NDArray[np.uint8]) -> float:
-        score = sharpness(grey)
+        # On a quarter-size image: sensor noise, added after the blur, would otherwise keep
+        # the Laplacian variance of a smeared frame high.
+        score = sharpness(cv2.pyrDown(cv2.pyrDown(grey)))
         median = float(np.median(self._scores)) if len(self._scores) >= 3 else 0.0
         ratio = score / median if median > 0.0 else 1.0
         self._scores.append(score)
@@ -233,6 +236,7 @@ class KeyframeSelector:
         grey = self._grey(image_bgr)
         cam = self._track_camera(camera, grey)
         sharp = self._sharpness_ratio(grey)
+        prev = self._prev
         self._track(grey)
         self._prev = grey
         blurred = sharp < self.cfg.min_sharpness_ratio
@@ -259,14 +263,29 @@ class KeyframeSelector:
         low_tracks = tracked < self.cfg.min_tracked_ratio
         if flow_px < self.cfg.min_flow_px and not low_tracks:
             return decide(False, 'waiting')
+        self._check_back(prev, grey)
         parallax_px, flow_step_px = self._step_parallax_px(cam)
-        if parallax_px < max(self.cfg.min_step_parallax_px,
-                             self.cfg.min_step_parallax_fraction * flow_step_px):
+        if flow_step_px >= self.cfg.min_turn_flow_px \
+                and parallax_px < self.cfg.min_step_parallax_fraction * flow_step_px:
             return decide(False, 'rotating')
         geo = self._geometry(cam)
         if geo is None or geo.degenerate:
             return decide(False, 'degenerate')
         return self._by_baseline(geo.baseline_ratio, low_tracks, target_area, decide)
+
+    def _check_back(self, prev: npt.NDArray[np.uint8] | None,
+                    grey: npt.NDArray[np.uint8]) -> None:
+        """Before a decision, drop corners that do not track back to where they came from."""
+        if prev is None or self._last_step is None or self._pts is None or not len(self._pts):
+            return
+        back, status, _ = cv2.calcOpticalFlowPyrLK(grey, prev, self._pts, None,
+                                                   winSize=(15, 15), maxLevel=3)
+        dist_px = np.linalg.norm((back - self._last_step).reshape(-1, 2), axis=1)
+        ok = status.ravel().astype(bool) & (dist_px <= 1.0)
+        if np.count_nonzero(ok) >= self.cfg.min_inliers:
+            assert self._pts0 is not None
+            self._pts, self._pts0, self._last_step = \
+                self._pts[ok], self._pts0[ok], self._last_step[ok]
 
     def _step_parallax_px(self, cam: CameraModel) -> tuple[float, float]:
         """
