@@ -1,0 +1,117 @@
+"""
+What the sfm node publishes, from an ``IncrementalSfm``: no ROS types, numpy only.
+
+The published segment is the one the scale can be taken from: the segment with at least three
+target vertex landmarks and the most keyframes (the current one on a tie); without such a
+segment, the one with the most keyframes.
+"""
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+from scipy.spatial.transform import Rotation
+
+from absscale_ros.core import sfm, sfm_map
+from absscale_ros.core import vertex_matching as vm
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int32]
+TARGET_TYPES = {'sheet': 0, 'cube': 1}  # /absscale/target_points target_type
+
+
+@dataclass(frozen=True)
+class TargetPoints:
+    """
+    Target vertex landmarks of one segment, one row each.
+
+    :param points: (N, 3) positions, SfM units, map frame.
+    :param object_ids: (N,) int32 object id (of the detection that created the landmark).
+    :param vertex_ids: (N,) int32 vertex id (as the detector numbered it in that keyframe).
+    :param n_obs: (N,) int32 keyframes that observed it.
+    :param angle_deg: (N,) float32 widest angle between two of its viewing rays, degrees.
+    :param target_types: (N,) int32 0 sheet, 1 cube.
+    """
+
+    points: FloatArray
+    object_ids: IntArray
+    vertex_ids: IntArray
+    n_obs: IntArray
+    angle_deg: npt.NDArray[np.float32]
+    target_types: IntArray
+
+
+def best_segment(engine: sfm.IncrementalSfm) -> sfm.Segment:
+    """The segment to publish (see the module docstring)."""
+    def key(i_seg: tuple[int, sfm.Segment]) -> tuple[bool, int, int]:
+        i, seg = i_seg
+        vertices = sum(lm.label is not None for lm in seg.map.landmarks.values())
+        return vertices >= 3, len(seg.map.keyframes), i
+    return max(enumerate(engine.segments), key=key)[1]
+
+
+def path(m: sfm_map.SfmMap) -> tuple[npt.NDArray[np.int64], FloatArray]:
+    """
+    Keyframe stamps and poses in stamp order.
+
+    :returns: (N,) int64 stamps_ns and (N, 7) ``[x y z qx qy qz qw]`` (T_world_cam: camera
+        centre in SfM units, quat_xyzw of the camera-to-map rotation).
+    """
+    kfs = sorted(m.keyframes.values(), key=lambda k: k.stamp_ns)
+    stamps = np.array([k.stamp_ns for k in kfs], np.int64)
+    if not kfs:
+        return stamps, np.zeros((0, 7))
+    T = np.array([k.T_world_cam for k in kfs])
+    quat_xyzw = Rotation.from_matrix(T[:, :3, :3]).as_quat()  # scipy's order is xyzw
+    return stamps, np.hstack([T[:, :3, 3], quat_xyzw])
+
+
+def widest_angle_deg(point: FloatArray, centres: FloatArray) -> float:
+    """
+    Widest angle between the rays from ``centres`` (K, 3) to ``point`` (3,), degrees.
+    """
+    rays = point[None] - centres
+    rays /= np.maximum(np.linalg.norm(rays, axis=1, keepdims=True), 1e-12)
+    cos = np.clip(rays @ rays.T, -1.0, 1.0)
+    return float(np.degrees(np.arccos(cos.min()))) if len(rays) > 1 else 0.0
+
+
+def _kind(m: sfm_map.SfmMap, lm_id: int) -> str:
+    for kf_id in m.landmarks[lm_id].obs_px:
+        kv = m.keyframes[kf_id].vertices if kf_id in m.keyframes else None
+        if kv is not None:
+            hits = np.flatnonzero(kv.landmark_of == lm_id)
+            if hits.size:
+                return str(kv.vertices.kinds[int(hits[0])])
+    return 'sheet'
+
+
+def target_points(m: sfm_map.SfmMap) -> TargetPoints:
+    """The vertex landmarks of ``m`` in object, vertex id order."""
+    rows = sorted((lm.label, lm_id) for lm_id, lm in m.landmarks.items()
+                  if lm.label is not None)
+    pts, angles = [], []
+    for _, lm_id in rows:
+        lm = m.landmarks[lm_id]
+        centres = np.array([m.keyframes[k].T_world_cam[:3, 3] for k in lm.obs_px
+                            if k in m.keyframes]).reshape(-1, 3)
+        pts.append(lm.point_world)
+        angles.append(widest_angle_deg(lm.point_world, centres))
+    return TargetPoints(
+        np.array(pts, np.float64).reshape(-1, 3),
+        np.array([r[0][0] for r in rows], np.int32), np.array([r[0][1] for r in rows], np.int32),
+        np.array([len(m.landmarks[r[1]].obs_px) for r in rows], np.int32),
+        np.array(angles, np.float32),
+        np.array([TARGET_TYPES[_kind(m, r[1])] for r in rows], np.int32))
+
+
+def vertices_from_rows(rows: np.ndarray) -> vm.Vertices | None:
+    """
+    Detected vertices of one keyframe from ``detect.VERTEX_DTYPE``-like rows (fields u, v,
+    object_id, vertex_id, target_type), or None when there are none.
+    """
+    if len(rows) == 0:
+        return None
+    kinds = tuple('cube' if t == TARGET_TYPES['cube'] else 'sheet' for t in rows['target_type'])
+    return vm.Vertices(np.asarray(rows['object_id'], np.int64),
+                       np.asarray(rows['vertex_id'], np.int64),
+                       np.stack([rows['u'], rows['v']], axis=1).astype(np.float64), kinds)

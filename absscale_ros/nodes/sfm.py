@@ -1,0 +1,170 @@
+"""
+sfm: an unscaled incremental reconstruction from the keyframes (``core/sfm.py``).
+
+Subscribes ``/absscale/keyframes`` (Image) and ``/absscale/keyframe_vertices`` (PointCloud2),
+paired by stamp, and ``/absscale/camera_info``. After each keyframe publishes, for the segment
+worth scaling (``core/sfm_outputs.best_segment``): ``/absscale/sparse_cloud`` (x y z rgb, SfM
+units), ``/absscale/keyframe_path`` (nav_msgs/Path, T_world_cam per keyframe),
+``/absscale/target_points`` (x y z object_id vertex_id n_obs angle_deg target_type) and
+``/diagnostics``. Parameters: the scalars of ``SfmConfig`` and its stages as ``features.*``,
+``twoview.*``, ``graph.*``, ``vertices.*``.
+"""
+from dataclasses import fields, is_dataclass, replace
+import time
+from typing import Any
+
+from absscale_ros import conversions
+from absscale_ros.core import errors, keyframes, pairing, sfm, sfm_outputs
+from absscale_ros.nodes import common
+from diagnostic_msgs.msg import DiagnosticArray
+from nav_msgs.msg import Path
+import numpy as np
+import rclpy
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+
+STAGES = {'features': 'feature_cfg', 'twoview': 'twoview_cfg', 'graph': 'graph_cfg',
+          'vertices': 'vertex_cfg'}  # parameter prefix -> SfmConfig field
+
+
+class SfmNode(Node):
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__('sfm', **kwargs)
+        cfg = sfm.SfmConfig()
+        flat = {f.name: getattr(cfg, f.name) for f in fields(cfg)
+                if not is_dataclass(getattr(cfg, f.name))}
+        values = {k: self.declare_parameter(k, v).value for k, v in flat.items()}
+        values.update({field: common.declare_config(self, getattr(cfg, field), prefix)
+                       for prefix, field in STAGES.items()})
+        self._cfg = replace(cfg, **values)
+        p = {x.name: x.value for x in self.declare_parameters('', [
+            ('pair_depth', 10), ('seed', 0), ('frame_id', 'map')])}
+        self._seed, self._frame = p['seed'], p['frame_id']
+        self._pairer: pairing.StampPairer[Image, PointCloud2] = pairing.StampPairer(
+            p['pair_depth'])
+        self._camera: Any = None
+        self.engine: sfm.IncrementalSfm | None = None
+        self._last: sfm.UpdateResult | None = None
+        self.statuses: dict[str, int] = {}
+        self._times_ms: list[float] = []
+        self._pubs = {name: self.create_publisher(cls, f'/absscale/{name}', common.RELIABLE)
+                      for name, cls in (('sparse_cloud', PointCloud2), ('keyframe_path', Path),
+                                        ('target_points', PointCloud2))}
+        self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self._ack = common.StepAck(self)
+        group = MutuallyExclusiveCallbackGroup()  # the map is updated by one callback at a time
+        self.create_subscription(CameraInfo, '/absscale/camera_info', self._on_info,
+                                 common.RELIABLE, callback_group=group)
+        self._kf_sub = self.create_subscription(
+            Image, '/absscale/keyframes', lambda m: self._settle(self._pairer.add_first(
+                conversions.stamp_to_ns(m.header.stamp), m)), common.RELIABLE,
+            callback_group=group)
+        self._kv_sub = self.create_subscription(
+            PointCloud2, '/absscale/keyframe_vertices', lambda m: self._settle(
+                self._pairer.add_second(conversions.stamp_to_ns(m.header.stamp), m)),
+            common.RELIABLE, callback_group=group)
+
+    def _on_info(self, msg: CameraInfo) -> None:
+        try:
+            self._camera = conversions.camera_info_to_model(msg)
+        except errors.AbsScaleError as err:
+            self.get_logger().warning(f'bad camera_info: {err}', throttle_duration_sec=5.0)
+
+    def _settle(self, result: pairing.Pairing[Image, PointCloud2]) -> None:
+        for _, image, vertices in result.pairs:
+            outputs = self._process(image, vertices)
+            self._ack.ack(image.header.stamp, self._kf_sub.topic_name, outputs)
+            self._ack.ack(vertices.header.stamp, self._kv_sub.topic_name, outputs)
+        for _, msg in result.dropped_first:
+            self.statuses['unpaired'] = self.statuses.get('unpaired', 0) + 1
+            self._ack.ack(msg.header.stamp, self._kf_sub.topic_name)
+        for _, msg in result.dropped_second:
+            self._ack.ack(msg.header.stamp, self._kv_sub.topic_name)
+
+    def _process(self, image_msg: Image, vertices_msg: PointCloud2) -> list[str]:
+        try:
+            image = conversions.image_msg_to_bgr(image_msg)
+            rows = conversions.cloud_msg_to_array(vertices_msg)
+        except errors.AbsScaleError as err:
+            self.get_logger().warning(f'keyframe dropped: {err}', throttle_duration_sec=5.0)
+            return []
+        if self.engine is None:
+            h, w = image.shape[:2]
+            camera = self._camera if self._camera is not None and \
+                (self._camera.width, self._camera.height) == (w, h) \
+                else keyframes.nominal_camera(w, h)
+            self.engine = sfm.IncrementalSfm(camera, self._cfg, np.random.default_rng(self._seed))
+        stamp_ns = conversions.stamp_to_ns(image_msg.header.stamp)
+        t0 = time.perf_counter()
+        self._last = self.engine.add_keyframe(stamp_ns, image,
+                                              sfm_outputs.vertices_from_rows(rows))
+        self._times_ms.append(1e3 * (time.perf_counter() - t0))
+        self.statuses[self._last.status] = self.statuses.get(self._last.status, 0) + 1
+        return self._publish(stamp_ns)
+
+    def _publish(self, stamp_ns: int) -> list[str]:
+        assert self.engine is not None
+        m = sfm_outputs.best_segment(self.engine).map
+        xyz, rgb = m.cloud()
+        stamps, poses = sfm_outputs.path(m)
+        tp = sfm_outputs.target_points(m)
+        msgs = {'sparse_cloud': conversions.xyz_rgb_to_cloud_msg(xyz, rgb, stamp_ns, self._frame),
+                'keyframe_path': conversions.poses_to_path_msg(poses, stamps, self._frame,
+                                                               stamp_ns),
+                'target_points': conversions.xyz_rgb_to_cloud_msg(
+                    tp.points, None, stamp_ns, self._frame, extra={
+                        'object_id': tp.object_ids, 'vertex_id': tp.vertex_ids,
+                        'n_obs': tp.n_obs, 'angle_deg': tp.angle_deg,
+                        'target_type': tp.target_types})}
+        for name, msg in msgs.items():  # target_points last: scale reads cloud and path then
+            self._pubs[name].publish(msg)
+        self._diagnose(stamp_ns, len(tp.points))
+        return [self._pubs[name].topic_name for name in msgs]
+
+    def _diagnose(self, stamp_ns: int, vertices: int) -> None:
+        r = self.report()
+        level, text = 'ok', self._last.message if self._last else 'no keyframe yet'
+        if r['keyframes_registered'] == 0:
+            level, text = 'warn', f'no reconstruction yet (camera only rotating?): {text}'
+        elif vertices == 0:
+            level, text = 'warn', ('no target vertex reconstructed yet (target not seen from '
+                                   f'two keyframes with parallax); {text}')
+        status = conversions.diagnostic_status(f'{self.get_name()}: reconstruction', level, text,
+                                               {**r, 'target_vertices': vertices})
+        self._diag_pub.publish(conversions.diagnostic_array([status], stamp_ns))
+
+    def report(self) -> dict[str, Any]:
+        """Keyframes, segments, reprojection and update times, for report.json."""
+        times = np.array(self._times_ms or [np.nan])
+        out: dict[str, Any] = {'keyframes_in': len(self._times_ms), 'keyframes_registered': 0,
+                               'segments': 0, 'landmarks': 0, 'target_vertices': 0,
+                               'reprojection_rms_px': float('nan'),
+                               'update_ms_median': float(np.median(times)),
+                               'update_ms_p95': float(np.percentile(times, 95)),
+                               'statuses': dict(self.statuses)}
+        if self.engine is not None:
+            m = sfm_outputs.best_segment(self.engine).map
+            out.update(keyframes_registered=len(m.keyframes), landmarks=len(m.landmarks),
+                       segments=len(self.engine.segments),
+                       target_vertices=sum(lm.label is not None for lm in m.landmarks.values()),
+                       reprojection_rms_px=m.reprojection_rms_px(self.engine.K),
+                       keyframes_registered_all=sum(len(s.map.keyframes)
+                                                    for s in self.engine.segments))
+        return out
+
+
+def main(args: list[str] | None = None) -> None:
+    rclpy.init(args=args)
+    node = SfmNode()
+    executor = MultiThreadedExecutor(num_threads=2)
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()

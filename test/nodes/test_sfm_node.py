@@ -1,0 +1,124 @@
+"""The sfm node as a real rclpy node: keyframes and their vertices in, map topics out."""
+from pathlib import Path
+import sys
+
+from absscale_ros import conversions
+from absscale_ros.core import detect, replay, sfm
+from absscale_ros.core.types import CameraModel
+from absscale_ros.nodes import common
+from absscale_ros.nodes.sfm import SfmNode
+from diagnostic_msgs.msg import DiagnosticArray
+from nav_msgs.msg import Path as PathMsg
+import numpy as np
+import pytest
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from ros_helpers import spin_until
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from std_msgs.msg import Header
+
+sys.path.insert(0, str(Path(__file__).parents[1] / 'core'))
+import sfm_scenes  # noqa: E402
+
+OUTPUTS = ('/absscale/sparse_cloud', '/absscale/keyframe_path', '/absscale/target_points')
+
+
+class Probe(Node):
+    """Publishes keyframes, vertices and camera_info; records outputs, diagnostics and acks."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__('probe', **kwargs)
+        self.got: dict[str, list] = {t: [] for t in OUTPUTS}
+        for topic, cls in zip(OUTPUTS, (PointCloud2, PathMsg, PointCloud2)):
+            self.create_subscription(cls, topic, self.got[topic].append, common.RELIABLE)
+        self.diags: list[DiagnosticArray] = []
+        # Only ours: another run on this machine may share the DDS domain.
+        self.create_subscription(DiagnosticArray, '/diagnostics', lambda m: self.diags.append(m)
+                                 if m.status[0].name.startswith('sfm') else None, 100)
+        self.acks: list[replay.Ack] = []
+        self.create_subscription(Header, common.ACK_TOPIC, lambda m: self.acks.append(
+            replay.Ack.decode(m.frame_id, conversions.stamp_to_ns(m.stamp))), common.RELIABLE)
+        self.info = self.create_publisher(CameraInfo, '/absscale/camera_info', common.RELIABLE)
+        self.kf = self.create_publisher(Image, '/absscale/keyframes', common.RELIABLE)
+        self.kv = self.create_publisher(PointCloud2, '/absscale/keyframe_vertices',
+                                        common.RELIABLE)
+
+    def send(self, camera: CameraModel, stamp_ns: int, image: np.ndarray,
+             vertices: np.ndarray) -> None:
+        self.info.publish(conversions.camera_model_to_info_msg(camera, stamp_ns, 'cam'))
+        self.kv.publish(conversions.array_to_cloud_msg(vertices, stamp_ns, 'cam'))
+        self.kf.publish(conversions.array_to_image_msg(image, 'bgr8', stamp_ns, 'cam'))
+
+
+def _rows(vertices) -> np.ndarray:
+    rows = np.zeros(len(vertices.object_ids), detect.VERTEX_DTYPE)
+    rows['u'], rows['v'] = vertices.points_px[:, 0], vertices.points_px[:, 1]
+    rows['object_id'], rows['vertex_id'] = vertices.object_ids, vertices.vertex_ids
+    rows['target_type'] = [0 if k == 'sheet' else 1 for k in vertices.kinds]
+    return rows
+
+
+def _run(context, seq: sfm_scenes.Sequence, with_vertices: bool) -> tuple[SfmNode, Probe]:
+    node, probe = SfmNode(context=context), Probe(context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    executor.add_node(probe)
+    assert spin_until(executor, lambda: probe.kf.get_subscription_count() > 0)
+    rng = np.random.default_rng(5)
+    for k, image in enumerate(seq.images_bgr):
+        stamp_ns = (k + 1) * 100_000_000
+        vertices = _rows(sfm_scenes.detections(seq, k, rng)[0]) if with_vertices else \
+            np.zeros(0, detect.VERTEX_DTYPE)
+        probe.send(seq.camera, stamp_ns, image, vertices)
+        # Step mode: the next keyframe only once this one is acknowledged on both inputs.
+        assert spin_until(executor, lambda: sum(a.stamp_ns == stamp_ns for a in probe.acks) == 2,
+                          timeout_s=30.0)
+    spin_until(executor, lambda: len(probe.diags) >= len(seq.images_bgr), timeout_s=2.0)
+    return node, probe
+
+
+def test_map_topics_match_the_core_and_every_input_is_acknowledged(context) -> None:
+    seq = sfm_scenes.make_sequence('indoor_paper', 1, count=6)
+    node, probe = _run(context, seq, with_vertices=True)
+    stamps = [(k + 1) * 100_000_000 for k in range(len(seq.images_bgr))]
+    for a in probe.acks:
+        assert a.node == 'sfm' and set(a.outputs) == set(OUTPUTS)
+    assert sorted({a.stamp_ns for a in probe.acks}) == stamps
+    for topic in OUTPUTS:
+        assert [conversions.stamp_to_ns(m.header.stamp) for m in probe.got[topic]] == stamps
+    # The same keyframes through the core alone give the same map.
+    engine = sfm.IncrementalSfm(seq.camera, sfm.SfmConfig(), np.random.default_rng(0))
+    rng = np.random.default_rng(5)
+    for k, image in enumerate(seq.images_bgr):
+        engine.add_keyframe(stamps[k], image, sfm_scenes.detections(seq, k, rng)[0])
+    poses, pose_stamps = conversions.path_msg_to_poses(probe.got[OUTPUTS[1]][-1])
+    ids, T = engine.current.map.poses()
+    assert list(pose_stamps) == [engine.current.map.keyframes[i].stamp_ns for i in ids]
+    assert np.allclose(poses[:, :3], T[:, :3, 3], atol=1e-5)
+    cloud = conversions.cloud_msg_to_array(probe.got[OUTPUTS[0]][-1])
+    assert len(cloud) == len(engine.current.map.landmarks) and 'rgb' in cloud.dtype.names
+    targets = conversions.cloud_msg_to_array(probe.got[OUTPUTS[2]][-1])
+    assert len(targets) >= 3 and set(targets['target_type']) == {0}
+    assert np.all(targets['n_obs'] >= 2) and np.all(targets['angle_deg'] > 1.0)
+    r = node.report()
+    assert r['keyframes_in'] == 6 and r['keyframes_registered'] == 6 and r['segments'] == 1
+    assert r['reprojection_rms_px'] <= 1.0 and r['update_ms_median'] > 0.0
+    assert r['target_vertices'] == len(targets)
+    status = probe.diags[-1].status[0]
+    assert status.level == b'\x00' and conversions.diagnostic_values(status)['landmarks'] == \
+        str(len(cloud))
+
+
+@pytest.mark.parametrize('rotate_only', [True, False])
+def test_rotation_only_and_no_target_end_with_a_warning(context, rotate_only: bool) -> None:
+    seq = sfm_scenes.make_sequence('outdoor_cube', 2, count=4, arc_deg=30.0,
+                                   rotate_only=rotate_only)
+    node, probe = _run(context, seq, with_vertices=False)
+    status = probe.diags[-1].status[0]
+    assert status.level == b'\x01'  # WARN, and no exception on the way
+    if rotate_only:
+        assert 'rotat' in status.message and node.report()['keyframes_registered'] == 0
+    else:
+        assert 'no target vertex' in status.message
+        assert node.report()['keyframes_registered'] >= 3
+    assert len(probe.got['/absscale/target_points'][-1].data) == 0
