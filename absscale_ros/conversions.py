@@ -530,7 +530,7 @@ def cloud_msg_to_array(msg: Any, skip_nans: bool = False) -> np.ndarray:
         points = rows.reshape(-1)
     if msg.is_bigendian:
         points = points.astype(dtype.newbyteorder('='))
-    if skip_nans:
+    if skip_nans and points.shape[0]:
         keep = np.ones(points.shape[0], dtype=bool)
         for axis in ('x', 'y', 'z'):
             if axis in points.dtype.names:

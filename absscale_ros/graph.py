@@ -55,7 +55,8 @@ def _overrides(values: dict[str, Any]) -> list[Parameter]:
 
 def run_graph(bag: str, config: str, replay_overrides: dict[str, Any] | None = None,
               on_progress: Callable[[Progress], None] | None = None,
-              drain_s: float = 0.3, domain_id: int | None = None) -> dict[str, Any]:
+              drain_s: float = 0.3, domain_id: int | None = None,
+              record: str | None = None) -> dict[str, Any]:
     """
     Replay ``bag`` through every available node; return the report (a JSON-able dict).
 
@@ -63,6 +64,7 @@ def run_graph(bag: str, config: str, replay_overrides: dict[str, Any] | None = N
     :param replay_overrides: bag_replay parameters that win over the config (mode, rate...).
     :param domain_id: DDS domain; None picks one from the process id, so offline runs on one
         machine never hear each other.
+    :param record: MCAP file to record every graph topic into (not the bag's own topics).
     :raises AbsScaleError: bad bag or config (before any node runs).
     """
     config_path = params.find_config(config)
@@ -71,6 +73,7 @@ def run_graph(bag: str, config: str, replay_overrides: dict[str, Any] | None = N
     rclpy.init(context=context, args=[],
                domain_id=1 + os.getpid() % 100 if domain_id is None else domain_id)
     nodes: dict[str, Node] = {}
+    monitor = None
     try:
         found = available_nodes()
         for name, cls in found:
@@ -79,12 +82,15 @@ def run_graph(bag: str, config: str, replay_overrides: dict[str, Any] | None = N
                 values['use_vertices'] = False  # no detector: frames alone decide
             nodes[name] = cls(context=context, parameter_overrides=_overrides(values))
         monitor = GraphMonitorNode(context=context)
+        monitor.discover()  # the pipeline's topics exist now: count them from the first message
+        if record:
+            monitor.record(record)
         replay_params = params.node_params(sections, 'bag_replay')
         replay_params.update(bag=str(bag), expect_nodes=','.join(nodes),
                              **(replay_overrides or {}))
         replay = BagReplayNode(context=context, parameter_overrides=_overrides(replay_params))
         for topic, msgtype in replay.topic_types().items():
-            monitor.watch(topic, msgtype)
+            monitor.watch(topic, msgtype, recorded=False)
         executor = SingleThreadedExecutor(context=context)
         for node in [*nodes.values(), monitor, replay]:
             executor.add_node(node)
@@ -117,6 +123,8 @@ def run_graph(bag: str, config: str, replay_overrides: dict[str, Any] | None = N
             on_progress(progress)
         return report
     finally:
+        if monitor is not None:
+            monitor.close()
         for node in nodes.values():
             node.destroy_node()
         rclpy.try_shutdown(context=context)

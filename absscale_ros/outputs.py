@@ -31,6 +31,9 @@ def write_run_outputs(latest: dict[str, tuple[Any, bytes]], out: Path,
                         ('/absscale/sparse_cloud', 'sparse_cloud.ply')):
         if topic in msgs:
             xyz, rgb = _cloud_arrays(msgs[topic])
+            if not len(xyz):
+                written[name] = {'points': 0, 'skipped': 'the cloud is empty'}
+                continue
             cloud.write_ply(out / name, xyz, rgb)
             written[name] = {'points': len(xyz)}
     for topic, units in (('/absscale/scaled_path', 'metres'),

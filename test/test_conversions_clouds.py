@@ -253,3 +253,8 @@ def test_malformed_clouds_are_rejected_with_numbers(fields: dict, match: str,
                                                     reader: str) -> None:
     with pytest.raises(errors.MessageError, match=match):
         conversions.cloud_msg_to_array(READERS[reader](xyz_cloud(**fields)))
+
+
+def test_empty_cloud_with_skip_nans() -> None:
+    msg = conversions.xyz_rgb_to_cloud_msg(np.zeros((0, 3)), np.zeros((0, 3), np.uint8))
+    assert conversions.cloud_msg_to_array(msg, skip_nans=True).shape == (0,)

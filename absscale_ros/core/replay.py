@@ -6,7 +6,6 @@ stepped topic it acknowledges (node, input topic, stamp) and names the topics it
 for that stamp; every acking subscriber of those topics then owes an acknowledgement too.
 The step is complete when nothing is owed, i.e. the whole graph has drained that frame.
 """
-from collections import Counter
 from dataclasses import dataclass, field
 from typing import Callable, Iterable
 
@@ -37,48 +36,48 @@ class StepTracker:
     """
     What the graph still owes for the message in flight.
 
+    Owed and received acknowledgements are sets of (node, input topic): a topic announced
+    twice for one stamp (a node that consumes two inputs and names its outputs in both
+    acknowledgements) is still one message to wait for, and an acknowledgement that overtakes
+    its announcement is simply already received.
+
     :param consumers_of: topic -> names of the acknowledging nodes subscribed to it.
     """
 
     consumers_of: Callable[[str], Iterable[str]]
     stamp_ns: int | None = None
-    owed: Counter[tuple[str, str]] = field(default_factory=Counter)
-    _early: Counter[tuple[str, str]] = field(default_factory=Counter)
+    owed: set[tuple[str, str]] = field(default_factory=set)
+    _received: set[tuple[str, str]] = field(default_factory=set)
 
     def start(self, topic: str, stamp_ns: int) -> None:
         """A stepped message on ``topic`` stamped ``stamp_ns`` has just been published."""
         self.stamp_ns = stamp_ns
         self.owed.clear()
-        self._early.clear()
+        self._received.clear()
         self._expect(topic)
 
     def _expect(self, topic: str) -> None:
         for node in self.consumers_of(topic):
-            key = (node, topic)
-            if self._early[key] > 0:  # its ack overtook the one that announced it
-                self._early[key] -= 1
-            else:
-                self.owed[key] += 1
+            if (node, topic) not in self._received:
+                self.owed.add((node, topic))
 
     def on_ack(self, ack: Ack) -> bool:
         """Record ``ack``; return True if it belonged to the message in flight."""
         if self.stamp_ns is None or ack.stamp_ns != self.stamp_ns:
             return False  # stale: from a step that timed out
         key = (ack.node, ack.input_topic)
-        if self.owed[key] > 0:
-            self.owed[key] -= 1
-        else:
-            self._early[key] += 1
+        self._received.add(key)
+        self.owed.discard(key)
         for topic in ack.outputs:
             self._expect(topic)
         return True
 
     @property
     def done(self) -> bool:
-        return self.stamp_ns is None or sum(self.owed.values()) == 0
+        return self.stamp_ns is None or not self.owed
 
     def pending(self) -> list[str]:
-        return sorted(f'{n} on {t}' for (n, t), c in self.owed.items() if c > 0)
+        return sorted(f'{n} on {t}' for n, t in self.owed)
 
 
 def due_wall_ns(bag_t_ns: int, bag_t0_ns: int, wall_t0_ns: int, rate: float) -> int:

@@ -15,6 +15,8 @@ from absscale_ros.nodes import common
 from rclpy.node import Node
 from std_msgs.msg import Header
 
+# What rclpy reports for an endpoint whose node's name has not been discovered yet.
+UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'
 IMAGE_TYPES = ('sensor_msgs/msg/Image', 'sensor_msgs/msg/CompressedImage')
 
 
@@ -66,16 +68,28 @@ class BagReplayNode(Node):
     def _consumers_of(self, topic: str) -> list[str]:
         if topic not in self._consumers:
             ackers = {i.node_name for i in self.get_publishers_info_by_topic(common.ACK_TOPIC)}
-            subs = self.get_subscriptions_info_by_topic(topic)
-            self._consumers[topic] = [i.node_name for i in subs if i.node_name in ackers]
+            names = [i.node_name for i in self.get_subscriptions_info_by_topic(topic)]
+            found = [n for n in names if n in ackers and n != UNKNOWN_NODE]
+            if UNKNOWN_NODE in names:  # discovery still running: do not remember a partial answer
+                return found
+            self._consumers[topic] = found
         return self._consumers[topic]
+
+    def _graph_known(self) -> bool:
+        """True once discovery has named every endpoint of every topic (see UNKNOWN_NODE)."""
+        for topic, _ in self.get_topic_names_and_types():
+            for info in (*self.get_subscriptions_info_by_topic(topic),
+                         *self.get_publishers_info_by_topic(topic)):
+                if info.node_name == UNKNOWN_NODE:
+                    return False
+        return True
 
     def _ready(self) -> bool:
         """Replay starts once the expected nodes can acknowledge and every topic is heard."""
         ackers = {i.node_name for i in self.get_publishers_info_by_topic(common.ACK_TOPIC)}
         missing = set(_csv(self._p['expect_nodes'])) - ackers
         unheard = [t for t, pub in self._pubs.items() if pub.get_subscription_count() == 0]
-        if not missing and not unheard:
+        if not missing and not unheard and self._graph_known():
             return True
         if time.monotonic() - self._created < self._p['startup_timeout_s']:
             return False

@@ -4,14 +4,15 @@ graph_monitor: counts every message on the graph's topics and keeps the latest d
 ``absscale run`` reads it to write report.json; it does not acknowledge, so it never slows the
 lossless replay down.
 """
+import time
 from typing import Any
 
-from absscale_ros import conversions
+from absscale_ros import bagio, conversions
 from absscale_ros.core.errors import AbsScaleError
 from absscale_ros.nodes import common
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
-from rclpy.serialization import deserialize_message
+from rclpy.serialization import deserialize_message, serialize_message
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 WATCHED_PREFIXES = ('/absscale/', '/scaled_cloud')
@@ -33,16 +34,26 @@ class GraphMonitorNode(Node):
         self.diagnostics: dict[str, dict[str, Any]] = {}
         self._subs: dict[str, Any] = {}
         self.latest: dict[str, tuple[Any, bytes]] = {}  # topic -> (message class, CDR bytes)
+        self._types: dict[str, str] = {}
         self.detections: list[tuple[int, int]] = []  # (stamp_ns, vertices) per frame
         self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics,
                                  common.RELIABLE)
-        self._discover()
-        self.create_timer(0.2, self._discover)
+        self._recorder: Any = None
+        self._not_recorded: set[str] = set()
+        self.discover()
+        self.create_timer(0.2, self.discover)
 
-    def watch(self, topic: str, msgtype: str) -> None:
+    def record(self, path: str) -> None:
+        """Write every graph topic (not the bag's own) to an MCAP file, for Foxglove."""
+        self._recorder = bagio.BagWriter(path).__enter__()
+
+    def watch(self, topic: str, msgtype: str, recorded: bool = True) -> None:
         """Count ``topic`` from now on (the runner names the bag's topics before replay)."""
+        if not recorded:
+            self._not_recorded.add(topic)
         if topic not in self._subs:
             cls = common.message_class(msgtype)
+            self._types[topic] = msgtype
             # Latched outputs only accept subscribers that ask for TRANSIENT_LOCAL; asking it
             # of a volatile publisher would match nothing.
             qos = LATE_JOINER if topic in LATCHED_TOPICS else common.RELIABLE
@@ -53,7 +64,7 @@ class GraphMonitorNode(Node):
     def total(self) -> int:
         return sum(self.counts.values())
 
-    def _discover(self) -> None:
+    def discover(self) -> None:
         """Subscribe to each new watched topic, whatever its type."""
         for topic, types in self.get_topic_names_and_types():
             # Subscribing to a debug overlay would make its node draw it for nobody.
@@ -70,13 +81,25 @@ class GraphMonitorNode(Node):
         self.counts[topic] = self.counts.get(topic, 0) + 1
         if topic in KEPT_TOPICS:
             self.latest[topic] = (cls, data)
+        if self._recorder is not None and topic not in self._not_recorded:
+            # Receive time as log time, as `ros2 bag record` does: one clock for all topics.
+            self._recorder.write(topic, self._types[topic], time.time_ns(), data)
         if topic == VERTICES_TOPIC:
             self.detections.append(conversions.cloud_stamp_and_size(deserialize_message(data,
                                                                                         cls)))
         self.bytes[topic] = self.bytes.get(topic, 0) + len(data)
 
+    def close(self) -> None:
+        """Finish the recording, if any."""
+        if self._recorder is not None:
+            self._recorder.__exit__(None, None, None)
+            self._recorder = None
+
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
-        self._count('/diagnostics', b'')
+        self.counts['/diagnostics'] = self.counts.get('/diagnostics', 0) + 1
+        if self._recorder is not None:
+            self._recorder.write('/diagnostics', 'diagnostic_msgs/msg/DiagnosticArray',
+                                 time.time_ns(), serialize_message(msg))
         for status in msg.status:
             self.diagnostics[status.name] = {
                 'level': int.from_bytes(status.level, 'little') if isinstance(

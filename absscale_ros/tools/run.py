@@ -18,6 +18,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--domain-id', type=int, default=None,
                         help='DDS domain to run on (default: a private one per run; give '
                              'your ROS_DOMAIN_ID to watch the run in RViz or Foxglove)')
+    parser.add_argument('--record', metavar='OUT.mcap', default=None,
+                        help='record every /absscale topic, /scaled_cloud and /diagnostics')
     parser.add_argument('--quiet', action='store_true', help='no progress bar')
 
 
@@ -40,7 +42,8 @@ def run(args: argparse.Namespace) -> int:
         lambda p: print(_progress_line(p), end='', file=sys.stderr, flush=True))
     report = graph.run_graph(args.bag, args.config,
                              replay_overrides={'mode': args.mode, 'rate': args.rate},
-                             on_progress=show, domain_id=args.domain_id)
+                             on_progress=show, domain_id=args.domain_id,
+                             record=args.record)
     if show is not None:
         print(file=sys.stderr)
     from absscale_ros import outputs

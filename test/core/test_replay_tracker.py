@@ -63,3 +63,13 @@ def test_due_time_scales_with_rate() -> None:
     assert due_wall_ns(2_000, 1_000, 50, 2.0) == 550
     with pytest.raises(ValueError):
         due_wall_ns(0, 0, 0, 0.0)
+
+
+def test_output_announced_by_two_acks_is_awaited_once() -> None:
+    """A node consuming two inputs may name its outputs in both acknowledgements."""
+    t = tracker()
+    t.start('/vertices', 4)
+    t.on_ack(Ack('selector', '/vertices', 4, ('/keyframes',)))
+    t.on_ack(Ack('sfm', '/keyframes', 4))
+    t.on_ack(Ack('selector', '/vertices', 4, ('/keyframes',)))
+    assert t.done
