@@ -104,11 +104,14 @@ def colour_mask(hsv: npt.NDArray[np.uint8], hue_deg: tuple[float, float], cfg: C
     return a | cv2.inRange(hsv, (0, s_lo, v_lo), (int(hi_h), 255, 255))
 
 
-def _face_quads(mask: npt.NDArray[np.uint8], cfg: CubeConfig
+def _face_quads(mask: npt.NDArray[np.uint8], cfg: CubeConfig, scale: float = 1.0
                 ) -> list[tuple[Array, npt.NDArray[np.int32]]]:
     """Return (rough quad, contour) of mask components that pass the paper's tests."""
     kernel = np.ones((3, 3), np.uint8)
-    mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, kernel, iterations=cfg.opening_iterations)
+    # The paper's opening is on the full image: on a work image ``scale`` times as big, as
+    # many 3x3 passes remove as thin a strip (a face seen almost edge-on survives).
+    passes = max(1, int(round(cfg.opening_iterations * scale)))
+    mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, kernel, iterations=passes)
     min_area = cfg.min_face_area_frac * mask.shape[0] * mask.shape[1]
     out: list[tuple[Array, npt.NDArray[np.int32]]] = []
     if cv2.countNonZero(mask) < min_area:
@@ -194,7 +197,7 @@ def detect_faces(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig) -> list[Face
     hsv = cv2.cvtColor(work, cv2.COLOR_BGR2HSV)
     rough = []
     for colour, hue in cfg.hue_ranges().items():
-        for quad, contour in _face_quads(colour_mask(hsv, hue, cfg), cfg):
+        for quad, contour in _face_quads(colour_mask(hsv, hue, cfg), cfg, scale):
             quad_full = (quad + 0.5) / scale - 0.5
             contour_full = (contour.reshape(-1, 2).astype(np.float64) + 0.5) / scale - 0.5
             rough.append((colour, np.array(_hough_sides(quad_full, contour_full, cfg)),
