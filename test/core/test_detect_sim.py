@@ -1,0 +1,55 @@
+"""Detector tests on simulator frames (``absscale simulate``): distractors, hidden vertices,
+motion blur and targets below the paper's 0.5% area, against the renderer's ground truth."""
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from absscale_ros.core import detect
+
+DATA = Path(__file__).parents[1] / 'data' / 'sim_frames'
+FRAMES = json.loads((DATA / 'frames.json').read_text())['frames']
+
+
+def _edge_lengths(fr):
+    """Per visible vertex: the longest image edge at it (the paper's l), px."""
+    v = fr['vertices_px']
+    out = {}
+    for i, vis in enumerate(fr['vertex_visible']):
+        if vis:
+            lens = [np.hypot(*np.subtract(v[b if a == i else a], v[i])) for a, b in fr['edges']
+                    if i in (a, b) and v[b if a == i else a] is not None]
+            out[i] = max(lens)
+    return out
+
+
+@pytest.mark.parametrize('fr', [f for f in FRAMES if f['covers_min_area']],
+                         ids=lambda f: f['file'])
+def test_sim_frame_target_found_to_half_a_percent(fr):
+    img = cv2.imread(str(DATA / fr['file']))
+    res = detect.detect(img, detect.DetectConfig(target=fr['target']), np.array(fr['K']))
+    kind = 'cube' if fr['target'] == 'cube' else 'sheet'
+    assert [d.target_type for d in res.detections] == [kind]
+    found = res.detections[0].vertices_px
+    lengths = _edge_lengths(fr)
+    true = np.array([fr['vertices_px'][i] for i in lengths])
+    rel = np.array([np.hypot(*(found - t).T).min() / lengths[i]
+                    for t, i in zip(true, lengths)])
+    # Every visible vertex is found (within 10% of its edge: a match, not a neighbour) ...
+    assert rel.max() < 0.1, fr['what']
+    # ... to the requirement's 0.5% of the edge length (median; 1% under a long motion-blur
+    # streak), and nothing extra is reported: each detected vertex is near a true one.
+    assert np.median(rel) <= (0.005 if fr['motion_blur_px'] < 30.0 else 0.01), fr['what']
+    extra = [np.hypot(*(true - p).T).min() for p in found]
+    assert max(extra) < 0.1 * min(lengths.values()), fr['what']
+
+
+@pytest.mark.parametrize('fr', [f for f in FRAMES if not f['covers_min_area']],
+                         ids=lambda f: f['file'])
+def test_sim_frame_small_target_rejected(fr):
+    assert 0.0 < fr['area_fraction'] < 0.005
+    img = cv2.imread(str(DATA / fr['file']))
+    res = detect.detect(img, detect.DetectConfig(target=fr['target']), np.array(fr['K']))
+    assert res.detections == (), fr['what']
