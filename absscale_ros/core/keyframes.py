@@ -51,6 +51,8 @@ class KeyframeConfig:
     :param min_target_area: target area / image area for a frame to count as showing it.
     :param min_parallax_px: median parallax left after removing the best pure rotation
         (tracking scale) below which the motion counts as degenerate.
+    :param max_step_flow_px: frame-to-frame corner motion (tracking scale) above which a
+        frame is never a keyframe (the camera swings too fast to trust the tracks).
     :param min_turn_flow_px: frame-to-frame corner motion (tracking scale) above which the
         camera may be turning on the spot, see next.
     :param min_step_parallax_fraction: a candidate whose frame-to-frame parallax left after
@@ -76,6 +78,7 @@ class KeyframeConfig:
     no_target_factor: float = 1.5
     min_target_area: float = 0.005
     min_parallax_px: float = 3.0
+    max_step_flow_px: float = 40.0
     min_turn_flow_px: float = 3.0
     min_step_parallax_fraction: float = 0.1
     sigma_px: float = 1.0
@@ -90,6 +93,8 @@ class KeyframeConfig:
                 <= self.max_baseline_ratio:
             raise ValueError('need 0 < min_baseline_ratio <= target_baseline_ratio '
                              '<= max_baseline_ratio')
+        if self.max_step_flow_px <= self.min_turn_flow_px:
+            raise ValueError('max_step_flow_px must exceed min_turn_flow_px')
         if self.lost_tracks < 5 or self.min_inliers < 5 or self.no_target_factor < 1.0:
             raise ValueError('lost_tracks >= 5, min_inliers >= 5, no_target_factor >= 1')
         if min(self.sigma_px, self.max_track_error) <= 0.0 or min(
@@ -105,7 +110,7 @@ class Decision:
     What the selector made of one frame.
 
     :param reason: why it is or is not a keyframe: 'first', 'baseline', 'tracks', 'blurred',
-        'degenerate', 'rotating', 'lost', 'waiting'.
+        'degenerate', 'rotating', 'fast', 'lost', 'waiting'.
     :param sharpness_ratio: Laplacian variance / running median (1.0 = typical).
     :param tracked_ratio: corners still tracked / corners detected in the reference.
     :param baseline_ratio: estimated baseline / median depth to the last keyframe (NaN if the
@@ -265,6 +270,8 @@ class KeyframeSelector:
             return decide(False, 'waiting')
         self._check_back(prev, grey)
         parallax_px, flow_step_px = self._step_parallax_px(cam)
+        if flow_step_px > self.cfg.max_step_flow_px:
+            return decide(False, 'fast')  # a whip pan: smeared corners, unreliable tracks
         if flow_step_px >= self.cfg.min_turn_flow_px \
                 and parallax_px < self.cfg.min_step_parallax_fraction * flow_step_px:
             return decide(False, 'rotating')

@@ -67,7 +67,7 @@ def test_step_replay_through_both_nodes_matches_the_core(context, tmp_path: Path
                == len(selector.keyframe_stamps_ns), timeout_s=2.0)
     decisions, _ = bench_keyframes.select(str(bag), keyframes.KeyframeConfig())
     expected = [d.stamp_ns for d in decisions if d.keyframe]
-    assert len(expected) >= 4
+    assert len(expected) >= 3
     assert selector.keyframe_stamps_ns == expected
     assert _stamps(probe.got['/absscale/keyframes']) == expected
     assert _stamps(probe.got['/absscale/keyframe_vertices']) == expected
