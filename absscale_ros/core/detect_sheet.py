@@ -42,7 +42,8 @@ class SheetConfig:
         when no camera model is given and the quadrilateral does not determine it.
     :param line_candidates: when the masks give no sheet, also try quadrilaterals of straight
         edges scored by gradient support (``quads``): a page on other pages or on a desk of
-        the same white.
+        the same white. Off for video: in a textured room it costs tens of ms on every frame
+        without a sheet; ``absscale detect`` (still images) turns it on.
     :param line_work_max_side_px: the line search runs on an image at most this big.
     :param line_max_refine: line hypotheses refined at full resolution, best supported first.
     :param max_inside_spread: largest distance of the colour just inside one side from the
@@ -66,7 +67,7 @@ class SheetConfig:
     focal_frac: float = 0.9
     canny_low: int = 20
     canny_high: int = 50
-    line_candidates: bool = True
+    line_candidates: bool = False
     line_work_max_side_px: int = 320
     line_max_refine: int = 3
     max_inside_spread: float = 0.25

@@ -18,8 +18,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    sheet = detect.detect_sheet.SheetConfig(sheet='custom', size_m=tuple(args.size_m)) \
-        if args.size_m else detect.detect_sheet.SheetConfig()
+    # Still images have no frame budget: the straight-edge sheet hypotheses are on.
+    sheet = detect.detect_sheet.SheetConfig(sheet='custom', size_m=tuple(args.size_m),
+                                            line_candidates=True) \
+        if args.size_m else detect.detect_sheet.SheetConfig(line_candidates=True)
     cfg = detect.DetectConfig(target=args.target, sheet=sheet)
     for path in args.images:
         image = cv2.imread(path, cv2.IMREAD_COLOR)

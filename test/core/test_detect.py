@@ -164,7 +164,9 @@ def test_page_on_pages_of_the_same_white_found_by_its_edges():
         st.fill(img, [[420, 300], [860, 460], [866, 448], [426, 288]], (25, 25, 25))  # a cable
     img = st.render_sheet(_rng(11), np.zeros((4, 2)) + 5.0, desk_bgr=(150, 170, 190),
                           extra=under)
-    dets = detect_sheet.detect_sheets(img, detect_sheet.SheetConfig(sheet='a4'))
+    assert detect_sheet.detect_sheets(img, detect_sheet.SheetConfig(sheet='a4')) == []
+    cfg = detect_sheet.SheetConfig(sheet='a4', line_candidates=True)
+    dets = detect_sheet.detect_sheets(img, cfg)
     assert len(dets) >= 1
     rel = min((_sheet_errors(d, true_px)[1] for d in dets), key=lambda r: r.mean())
     assert np.median(rel) < 0.005
