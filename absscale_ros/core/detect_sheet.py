@@ -63,7 +63,7 @@ class SheetConfig:
     aspect_tol: float = 0.15
     min_support: float = 0.5
     min_contrast: float = 10.0
-    work_max_side_px: int = 640
+    work_max_side_px: int = 480
     focal_frac: float = 0.9
     canny_low: int = 20
     canny_high: int = 50
@@ -279,6 +279,9 @@ def _accept(image_bgr: npt.NDArray[np.uint8], quad_full: Array, band: float, cfg
             K: Array | None, found: list[tuple[float, Array]]) -> None:
     """Refine a candidate; append (score, corners) to ``found`` when it passes every test."""
     h, w = image_bgr.shape[:2]
+    if any(np.hypot(*(quad_full[:, None] - c[None]).T).min(axis=0).max() <= band
+           for _, c in found):
+        return  # another mask's outline of a sheet already found
     refined = refine_quad(image_bgr, quad_full, band)
     if refined is None or refined[1].min() < cfg.min_support:
         return

@@ -25,10 +25,12 @@ def line_through(p0: Array, p1: Array, inside: Array) -> Array:
 
 def intersect(l1: Array, l2: Array) -> Array | None:
     """Return the (2,) intersection of two lines, or None when they are near parallel."""
-    p = np.cross(l1, l2)
-    if abs(p[2]) < 1e-9 * max(1.0, float(np.abs(p[:2]).max())):
+    px = l1[1] * l2[2] - l1[2] * l2[1]
+    py = l1[2] * l2[0] - l1[0] * l2[2]
+    pw = l1[0] * l2[1] - l1[1] * l2[0]
+    if abs(pw) < 1e-9 * max(1.0, abs(px), abs(py)):
         return None
-    return p[:2] / p[2]
+    return np.array([px / pw, py / pw])
 
 
 def nearest_point(lines: Array) -> Array:

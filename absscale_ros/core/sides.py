@@ -89,18 +89,19 @@ def fit_lines(pts: Array, weights: Array, outward: Array, scale_px: Array,
     """
     w = weights.copy()
     out = np.zeros((len(pts), 3))
+    x, y = pts[..., 0], pts[..., 1]
     for _ in range(iters):
         sw = np.maximum(w.sum(axis=1), 1e-12)
-        mean = np.einsum('sn,snk->sk', w, pts) / sw[:, None]
-        d = pts - mean[:, None, :]
-        cxx = np.einsum('sn,sn->s', w, d[..., 0] ** 2)
-        cyy = np.einsum('sn,sn->s', w, d[..., 1] ** 2)
-        cxy = np.einsum('sn,sn->s', w, d[..., 0] * d[..., 1])
+        mx, my = (w * x).sum(axis=1) / sw, (w * y).sum(axis=1) / sw
+        dx, dy = x - mx[:, None], y - my[:, None]
+        cxx, cyy = (w * dx * dx).sum(axis=1), (w * dy * dy).sum(axis=1)
+        cxy = (w * dx * dy).sum(axis=1)
         phi = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)  # direction of largest spread
-        n = np.stack([-np.sin(phi), np.cos(phi)], axis=1)
-        n *= np.where(np.einsum('sk,sk->s', n, outward) < 0.0, -1.0, 1.0)[:, None]
-        out = np.concatenate([n, -np.einsum('sk,sk->s', n, mean)[:, None]], axis=1)
-        r = np.einsum('snk,sk->sn', d, n) / (4.685 * scale_px[:, None])
+        nx, ny = -np.sin(phi), np.cos(phi)
+        flip = np.where(nx * outward[:, 0] + ny * outward[:, 1] < 0.0, -1.0, 1.0)
+        nx, ny = nx * flip, ny * flip
+        out = np.stack([nx, ny, -(nx * mx + ny * my)], axis=1)
+        r = (dx * nx[:, None] + dy * ny[:, None]) / (4.685 * scale_px[:, None])
         w = weights * np.where(np.abs(r) < 1.0, (1.0 - r ** 2) ** 2, 0.0)
     return out
 
