@@ -5,7 +5,7 @@ Every node of the pipeline that exists is started with its section of the config
 ``bag_replay`` steps the bag through them losslessly; the run ends when the bag is done and
 the graph has drained the last frame.
 """
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 import importlib
 import os
 import time
@@ -14,8 +14,9 @@ from typing import Any, Callable
 from absscale_ros import params
 from absscale_ros.nodes.bag_replay import BagReplayNode
 from absscale_ros.nodes.graph_monitor import GraphMonitorNode
+import numpy as np
 import rclpy
-from rclpy.executors import SingleThreadedExecutor
+from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
@@ -36,8 +37,26 @@ class Progress:
     published: int = 0
     total: int = 0
     steps: int = 0
+    keyframes: int = 0
+    scale: tuple[float, float] | None = None  # (factor, sigma) once established
     elapsed_s: float = 0.0
-    nodes: dict[str, Node] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """
+    How to run the graph over a bag.
+
+    :param live: replay at bag rate into sensor-data QoS with a multi-threaded executor, so
+        nodes that fall behind drop frames instead of queueing them (a camera's view).
+    """
+
+    mode: str = 'step'
+    rate: float = 1.0
+    live: bool = False
+    domain_id: int | None = None  # None: a private one from the process id
+    record: str | None = None  # MCAP file for every graph topic (not the bag's own)
+    drain_s: float = 0.3
 
 
 def available_nodes() -> list[tuple[str, type]]:
@@ -53,76 +72,69 @@ def _overrides(values: dict[str, Any]) -> list[Parameter]:
     return [Parameter(k, value=v) for k, v in values.items()]
 
 
-def run_graph(bag: str, config: str, replay_overrides: dict[str, Any] | None = None,
-              on_progress: Callable[[Progress], None] | None = None,
-              drain_s: float = 0.3, domain_id: int | None = None,
-              record: str | None = None) -> dict[str, Any]:
+def _start_nodes(context: rclpy.Context, sections: dict[str, dict[str, Any]],
+                 live: bool) -> dict[str, Node]:
+    nodes: dict[str, Node] = {}
+    found = available_nodes()
+    for name, cls in found:
+        values = params.node_params(sections, name)
+        if name == 'keyframe_selector' and 'vertex_detector' not in dict(found):
+            values['use_vertices'] = False  # no detector: frames alone decide
+        if live:
+            values['qos'] = 'sensor_data'  # nodes that have this parameter drop when behind
+        nodes[name] = cls(context=context, parameter_overrides=_overrides(values))
+    return nodes
+
+
+def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
+              on_progress: Callable[[Progress], None] | None = None) -> dict[str, Any]:
     """
     Replay ``bag`` through every available node; return the report (a JSON-able dict).
 
     :param config: config name or YAML path (see ``params.find_config``).
-    :param replay_overrides: bag_replay parameters that win over the config (mode, rate...).
-    :param domain_id: DDS domain; None picks one from the process id, so offline runs on one
-        machine never hear each other.
-    :param record: MCAP file to record every graph topic into (not the bag's own topics).
     :raises AbsScaleError: bad bag or config (before any node runs).
     """
     config_path = params.find_config(config)
     sections = params.load_yaml(config_path)
     context = rclpy.Context()
-    rclpy.init(context=context, args=[],
-               domain_id=1 + os.getpid() % 100 if domain_id is None else domain_id)
+    rclpy.init(context=context, args=[], domain_id=1 + os.getpid() % 100
+               if options.domain_id is None else options.domain_id)
     nodes: dict[str, Node] = {}
-    monitor = None
+    monitor = executor = None
     try:
-        found = available_nodes()
-        for name, cls in found:
-            values = params.node_params(sections, name)
-            if name == 'keyframe_selector' and 'vertex_detector' not in dict(found):
-                values['use_vertices'] = False  # no detector: frames alone decide
-            nodes[name] = cls(context=context, parameter_overrides=_overrides(values))
+        nodes = _start_nodes(context, sections, options.live)
         monitor = GraphMonitorNode(context=context)
         monitor.discover()  # the pipeline's topics exist now: count them from the first message
-        if record:
-            monitor.record(record)
+        if options.record:
+            monitor.record(options.record)
         replay_params = params.node_params(sections, 'bag_replay')
-        replay_params.update(bag=str(bag), expect_nodes=','.join(nodes),
-                             **(replay_overrides or {}))
+        replay_params.update(bag=str(bag), expect_nodes=','.join(nodes), mode=options.mode,
+                             rate=options.rate)
+        if options.live:
+            replay_params.update(mode='rate', qos='sensor_data')
         replay = BagReplayNode(context=context, parameter_overrides=_overrides(replay_params))
         for topic, msgtype in replay.topic_types().items():
-            monitor.watch(topic, msgtype, recorded=False)
-        executor = SingleThreadedExecutor(context=context)
+            monitor.watch(topic, msgtype, recorded=False, best_effort=options.live)
+        executor = MultiThreadedExecutor(num_threads=3, context=context) if options.live \
+            else SingleThreadedExecutor(context=context)
         for node in [*nodes.values(), monitor, replay]:
             executor.add_node(node)
-        t0 = time.monotonic()
-        progress = Progress(total=replay.total, nodes=nodes)
-        last_report = 0.0
-        while not replay.finished:
-            executor.spin_once(timeout_sec=0.05)
-            now = time.monotonic()
-            if on_progress is not None and now - last_report > 0.2:
-                last_report = now
-                progress.published, progress.steps = replay.published, replay.steps
-                progress.elapsed_s = now - t0
-                on_progress(progress)
-        _drain(executor, monitor, drain_s)
-        wall_s = time.monotonic() - t0
+        wall_s = _spin(executor, replay, monitor, nodes, options, on_progress)
         report = {
             'bag': str(bag), 'config': str(config_path), 'wall_time_s': round(wall_s, 3),
-            'replay': {'mode': replay_params.get('mode', 'rate'), 'published': replay.published,
-                       'total': replay.total, 'steps': replay.steps,
-                       'step_timeouts': replay.timeouts},
+            'replay': {'mode': replay_params['mode'], 'live': options.live,
+                       'published': replay.published, 'total': replay.total,
+                       'steps': replay.steps, 'step_timeouts': replay.timeouts},
             'nodes': {name: _node_report(node) for name, node in nodes.items()},
             **monitor.report(),
+            'latency_s': _latency(replay.published_at, monitor.cloud_updates),
+            'detections': list(monitor.detections),
+            '_latest': dict(monitor.latest),  # popped by the caller that writes files
         }
-        report['detections'] = list(monitor.detections)
-        report['_latest'] = dict(monitor.latest)  # popped by the caller that writes files
-        if on_progress is not None:
-            progress.published, progress.steps, progress.elapsed_s = \
-                replay.published, replay.steps, wall_s
-            on_progress(progress)
         return report
     finally:
+        if executor is not None:
+            executor.shutdown(timeout_sec=5.0)  # worker threads stop before the nodes go
         if monitor is not None:
             monitor.close()
         for node in nodes.values():
@@ -130,7 +142,43 @@ def run_graph(bag: str, config: str, replay_overrides: dict[str, Any] | None = N
         rclpy.try_shutdown(context=context)
 
 
-def _drain(executor: SingleThreadedExecutor, monitor: GraphMonitorNode, quiet_s: float) -> None:
+def _spin(executor: Any, replay: BagReplayNode, monitor: GraphMonitorNode,
+          nodes: dict[str, Node], options: RunOptions,
+          on_progress: Callable[[Progress], None] | None) -> float:
+    """Spin until the bag is replayed and the graph has drained; return the wall time, s."""
+    t0 = time.monotonic()
+    last = 0.0
+    while True:
+        done = replay.finished
+        if done:
+            _drain(executor, monitor, options.drain_s)
+        now = time.monotonic()
+        if on_progress is not None and (done or now - last > 0.2):
+            last = now
+            on_progress(_progress(replay, nodes, now - t0))
+        if done:
+            return now - t0
+        executor.spin_once(timeout_sec=0.05)
+
+
+def _progress(replay: BagReplayNode, nodes: dict[str, Node], elapsed_s: float) -> Progress:
+    selector, scaler = nodes.get('keyframe_selector'), nodes.get('scale')
+    estimate = getattr(scaler, 'estimate', None)
+    return Progress(replay.published, replay.total, replay.steps,
+                    len(getattr(selector, 'keyframe_stamps_ns', ())),
+                    None if estimate is None else (estimate.factor, estimate.sigma), elapsed_s)
+
+
+def _latency(published_at: dict[int, int], updates: list[tuple[int, int]]) -> dict[str, Any]:
+    """Seconds from a frame's publication to the /scaled_cloud update stamped with it."""
+    lat = [(t - published_at[stamp]) / 1e9 for stamp, t in updates if stamp in published_at]
+    if not lat:
+        return {'updates': 0}
+    return {'updates': len(lat), 'median': float(np.median(lat)),
+            'p95': float(np.percentile(lat, 95)), 'max': float(np.max(lat))}
+
+
+def _drain(executor: Any, monitor: GraphMonitorNode, quiet_s: float) -> None:
     """Spin until no message has moved for ``quiet_s`` (late diagnostics, last clouds)."""
     deadline = time.monotonic() + 10.0
     quiet_since, seen = time.monotonic(), monitor.total

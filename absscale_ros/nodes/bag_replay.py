@@ -46,6 +46,7 @@ class BagReplayNode(Node):
         self.total = sum(i.count for i in self._infos.values())
         self.published = self.steps = self.timeouts = 0
         self.finished = False
+        self.published_at: dict[int, int] = {}  # frame stamp -> monotonic ns it went out
         self._cursor: bagio.ReplayCursor | None = None
         self._step_started = self._last_progress = self._created = time.monotonic()
         self._create_ack_sub()
@@ -145,6 +146,8 @@ class BagReplayNode(Node):
                 stamp = bagio.header_stamp_ns(msg.data)
                 self._tracker.start(self._pubs[msg.topic].topic_name,
                                     msg.stamp_ns if stamp is None else stamp)
+                self.published_at[msg.stamp_ns if stamp is None else stamp] = \
+                    time.monotonic_ns()
                 self.steps += 1
                 self._step_started = time.monotonic()
                 if not self._tracker.done:
@@ -181,6 +184,9 @@ class BagReplayNode(Node):
     def _publish(self, msg: bagio.BagMessage) -> None:
         self._pubs[msg.topic].publish(msg.data)  # serialized bytes: no re-encoding
         self.published += 1
+        if self._p['mode'] != 'step' and msg.topic in self._stepped:
+            stamp = bagio.header_stamp_ns(msg.data)
+            self.published_at[msg.stamp_ns if stamp is None else stamp] = time.monotonic_ns()
 
     def _report_progress(self) -> None:
         now = time.monotonic()

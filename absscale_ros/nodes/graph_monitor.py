@@ -36,6 +36,7 @@ class GraphMonitorNode(Node):
         self.latest: dict[str, tuple[Any, bytes]] = {}  # topic -> (message class, CDR bytes)
         self._types: dict[str, str] = {}
         self.detections: list[tuple[int, int]] = []  # (stamp_ns, vertices) per frame
+        self.cloud_updates: list[tuple[int, int]] = []  # /scaled_cloud (stamp, monotonic ns)
         self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics,
                                  common.RELIABLE)
         self._recorder: Any = None
@@ -47,7 +48,8 @@ class GraphMonitorNode(Node):
         """Write every graph topic (not the bag's own) to an MCAP file, for Foxglove."""
         self._recorder = bagio.BagWriter(path).__enter__()
 
-    def watch(self, topic: str, msgtype: str, recorded: bool = True) -> None:
+    def watch(self, topic: str, msgtype: str, recorded: bool = True,
+              best_effort: bool = False) -> None:
         """Count ``topic`` from now on (the runner names the bag's topics before replay)."""
         if not recorded:
             self._not_recorded.add(topic)
@@ -57,6 +59,8 @@ class GraphMonitorNode(Node):
             # Latched outputs only accept subscribers that ask for TRANSIENT_LOCAL; asking it
             # of a volatile publisher would match nothing.
             qos = LATE_JOINER if topic in LATCHED_TOPICS else common.RELIABLE
+            if best_effort:  # a reliable request would not match a sensor-data publisher
+                qos = common.SENSOR
             self._subs[topic] = self.create_subscription(
                 cls, topic, lambda data, t=topic, c=cls: self._count(t, data, c), qos, raw=True)
 
@@ -84,6 +88,10 @@ class GraphMonitorNode(Node):
         if self._recorder is not None and topic not in self._not_recorded:
             # Receive time as log time, as `ros2 bag record` does: one clock for all topics.
             self._recorder.write(topic, self._types[topic], time.time_ns(), data)
+        if topic == '/scaled_cloud':
+            stamp = bagio.header_stamp_ns(data)
+            if stamp is not None:
+                self.cloud_updates.append((stamp, time.monotonic_ns()))
         if topic == VERTICES_TOPIC:
             self.detections.append(conversions.cloud_stamp_and_size(deserialize_message(data,
                                                                                         cls)))

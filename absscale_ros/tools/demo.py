@@ -23,7 +23,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     print(f'absscale demo: replaying {bag.name} through the graph (config {args.scene})')
-    report = graph.run_graph(str(bag), args.scene, replay_overrides={'mode': 'step'})
+    report = graph.run_graph(str(bag), args.scene, graph.RunOptions(mode='step'))
     from absscale_ros import outputs
     report['outputs'] = outputs.write_run_outputs(report.pop('_latest'), out, report)
     (out / 'report.json').write_text(json.dumps(report, indent=2, default=str) + '\n')

@@ -3,8 +3,12 @@ import argparse
 import json
 from pathlib import Path
 import sys
+from typing import TYPE_CHECKING
 
 from absscale_ros import bagio, params
+
+if TYPE_CHECKING:
+    from absscale_ros import graph
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -20,15 +24,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              'your ROS_DOMAIN_ID to watch the run in RViz or Foxglove)')
     parser.add_argument('--record', metavar='OUT.mcap', default=None,
                         help='record every /absscale topic, /scaled_cloud and /diagnostics')
+    parser.add_argument('--live', action='store_true',
+                        help='replay at bag rate into sensor-data QoS; nodes drop when behind')
     parser.add_argument('--quiet', action='store_true', help='no progress bar')
 
 
-def _progress_line(p: object) -> str:
-    published, total = getattr(p, 'published'), max(1, getattr(p, 'total'))
+def _progress_line(p: 'graph.Progress') -> str:
     width = 30
-    filled = int(width * published / total)
-    return (f'\r[{"#" * filled}{"." * (width - filled)}] {published}/{total} msgs '
-            f'{getattr(p, "steps")} frames {getattr(p, "elapsed_s"):.1f} s')
+    filled = int(width * p.published / max(1, p.total))
+    scale = 'scale: not yet' if p.scale is None else \
+        f'scale {p.scale[0]:.5g} +/- {p.scale[1]:.2g}'
+    return (f'\r[{"#" * filled}{"." * (width - filled)}] {p.published}/{p.total} msgs, '
+            f'{p.steps} frames, {p.keyframes} keyframes, {scale}, {p.elapsed_s:.1f} s ')
 
 
 def run(args: argparse.Namespace) -> int:
@@ -40,10 +47,9 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     show = None if args.quiet or not sys.stderr.isatty() else (
         lambda p: print(_progress_line(p), end='', file=sys.stderr, flush=True))
-    report = graph.run_graph(args.bag, args.config,
-                             replay_overrides={'mode': args.mode, 'rate': args.rate},
-                             on_progress=show, domain_id=args.domain_id,
-                             record=args.record)
+    options = graph.RunOptions(mode=args.mode, rate=args.rate, live=args.live,
+                               domain_id=args.domain_id, record=args.record)
+    report = graph.run_graph(args.bag, args.config, options, on_progress=show)
     if show is not None:
         print(file=sys.stderr)
     from absscale_ros import outputs
