@@ -17,6 +17,7 @@ import numpy.typing as npt
 FloatArray = npt.NDArray[np.float64]
 _R_DATA = 4.0  # dimension of one observation (two 2-D points)
 _LAMBDA3 = 2.0  # robust cap of the squared residual, in sigma^2 per missing dimension
+MIN_ANGLE_DEG = 0.5  # triangulation angle of the points the median depth is taken over
 
 
 @dataclass(frozen=True)
@@ -117,6 +118,16 @@ def baseline_ratio(R: FloatArray, t: FloatArray, xy0: FloatArray, xy1: FloatArra
         z0 = X[2] / X[3]
         z1 = (R[2] @ X[:3] + t[2] * X[3]) / X[3]
     good = np.isfinite(z0) & (z0 > 0.0) & (z1 > 0.0)
+    # Points seen under a tiny angle (near the epipole of a forward walk) get wild depths that
+    # drag the median far; leave them out unless too few others remain.
+    with np.errstate(divide='ignore', invalid='ignore'):
+        P = (X[:3] / X[3]).T
+    c1 = -R.T @ t
+    cos = np.einsum('ij,ij->i', P, P - c1) / (np.linalg.norm(P, axis=1)
+                                              * np.linalg.norm(P - c1, axis=1))
+    steep = good & (cos < np.cos(np.deg2rad(MIN_ANGLE_DEG)))
+    if np.count_nonzero(steep) >= 5 and np.count_nonzero(steep) >= 0.3 * np.count_nonzero(good):
+        good = steep
     if np.count_nonzero(good) < 5:
         return float('nan')
     return float(1.0 / np.median(z0[good]))

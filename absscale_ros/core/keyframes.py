@@ -23,6 +23,7 @@ from absscale_ros.core.types import CameraModel
 
 FloatArray = npt.NDArray[np.float64]
 Decide = Callable[..., 'Decision']
+GRID = (4, 3)  # columns, rows of the corner detection grid
 
 
 @dataclass(frozen=True)
@@ -197,9 +198,20 @@ class KeyframeSelector:
         return ratio if np.isfinite(ratio) else 1.0
 
     def _seed(self, grey: npt.NDArray[np.uint8]) -> None:
-        pts = cv2.goodFeaturesToTrack(grey, self.cfg.max_features, 0.01,
-                                      self.cfg.min_feature_distance_px, blockSize=5)
-        self._pts = pts if pts is not None else np.zeros((0, 1, 2), np.float32)
+        # Corners per cell of a 4 x 3 grid, so that the tracks (and the median depth the
+        # baseline is measured against) cover the whole view, not only its busiest texture.
+        h, w = grey.shape
+        per_cell = max(1, self.cfg.max_features // (GRID[0] * GRID[1]))
+        found = []
+        for i in range(GRID[0]):
+            for j in range(GRID[1]):
+                x0, x1 = i * w // GRID[0], (i + 1) * w // GRID[0]
+                y0, y1 = j * h // GRID[1], (j + 1) * h // GRID[1]
+                pts = cv2.goodFeaturesToTrack(grey[y0:y1, x0:x1], per_cell, 0.01,
+                                              self.cfg.min_feature_distance_px, blockSize=5)
+                if pts is not None:
+                    found.append(pts + np.array([x0, y0], np.float32))
+        self._pts = np.concatenate(found) if found else np.zeros((0, 1, 2), np.float32)
         self._pts0 = self._pts.copy()
         self._seeded = len(self._pts)
 
@@ -274,10 +286,12 @@ class KeyframeSelector:
             return decide(False, 'fast')  # a whip pan: smeared corners, unreliable tracks
         if flow_step_px >= self.cfg.min_turn_flow_px \
                 and parallax_px < self.cfg.min_step_parallax_fraction * flow_step_px:
-            return decide(False, 'rotating')
+            return self._lost(grey, decide, False) if low_tracks else decide(False, 'rotating')
         geo = self._geometry(cam)
         if geo is None or geo.degenerate:
-            return decide(False, 'degenerate')
+            # Few corners left and still no baseline: the overlap with the last keyframe is
+            # going; start again from here rather than wait on a handful of far corners.
+            return self._lost(grey, decide, False) if low_tracks else decide(False, 'degenerate')
         return self._by_baseline(geo.baseline_ratio, low_tracks, target_area, decide)
 
     def _check_back(self, prev: npt.NDArray[np.uint8] | None,
