@@ -21,6 +21,8 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ('bench', 'replay'): ('absscale_ros.tools.bench_replay', 'bag_replay step-mode throughput'),
     ('simulate',): ('absscale_ros.tools.simulate', 'render a handheld video with ground truth'),
     ('bench', 'render'): ('absscale_ros.tools.bench_render', 'simulator rendering speed'),
+    ('bench', 'scale'): ('absscale_ros.tools.bench_scale', 'metric scale and lengths against '
+                         'ground truth (Table 3)'),
     ('detect',): ('absscale_ros.tools.detect', 'detect target vertices in image files'),
     ('bench', 'detect'): ('absscale_ros.tools.bench_detect', 'detection accuracy against gt.json'),
     ('bench', 'sfm'): ('absscale_ros.tools.bench_sfm', 'incremental SfM against gt.json, pycolmap'),

@@ -1,0 +1,106 @@
+"""
+Accuracy of a metric reconstruction against simulator ground truth (the paper's Table 3).
+
+A reconstructed landmark's true point is found without any alignment: project it into a
+keyframe with that keyframe's reconstructed pose, and take the ground-truth surface point
+behind that pixel (the simulator re-renders it). Two keyframes must agree, which rejects
+landmarks hidden in one of them. Lengths between landmarks then compare with lengths between
+their true points, in mm per metre.
+"""
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+import numpy.typing as npt
+from scipy.spatial.transform import Rotation
+
+from absscale_ros.core import align
+from absscale_ros.core.types import CameraModel
+
+FloatArray = npt.NDArray[np.float64]
+TruthFn = Callable[[int, FloatArray], FloatArray]  # (frame index, (N,2) px) -> (N,3) world m
+
+
+def true_scale(unscaled_positions: FloatArray, gt_positions_m: FloatArray) -> float:
+    """Metres per SfM unit that best align the unscaled trajectory with the truth (Umeyama)."""
+    return align.umeyama(unscaled_positions, gt_positions_m)[0]
+
+
+def project(points: FloatArray, pose_xyzw: FloatArray, camera: CameraModel) -> FloatArray:
+    """
+    (N, 2) distorted pixels of world points seen from one camera (NaN behind it).
+
+    :param pose_xyzw: (7,) ``x y z qx qy qz qw``, world from camera.
+    """
+    import cv2
+    R_wc = Rotation.from_quat(pose_xyzw[3:]).as_matrix()
+    p_cam = (np.asarray(points) - pose_xyzw[:3]) @ R_wc
+    px, _ = cv2.projectPoints(p_cam.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), camera.K,
+                              camera.dist if camera.has_distortion else None)
+    px = px.reshape(-1, 2)
+    px[p_cam[:, 2] <= 0.05] = np.nan
+    return px
+
+
+def landmark_truth(points_m: FloatArray, poses_m: FloatArray, frame_of_pose: list[int],
+                   camera: CameraModel, truth: TruthFn, agree_m: float = 0.01) -> FloatArray:
+    """
+    (N, 3) true world point of each landmark, NaN where two keyframes do not agree.
+
+    :param points_m: (N, 3) metric landmarks (reconstruction frame).
+    :param poses_m: (K, 7) metric keyframe poses in the same frame.
+    :param frame_of_pose: ground-truth frame index of each keyframe.
+    """
+    n = len(points_m)
+    found = np.full((n, 2, 3), np.nan)
+    have = np.zeros(n, int)
+    margin = 2.0
+    for k in np.argsort(-np.arange(len(poses_m))):  # latest keyframes first: densest map
+        px = project(points_m, poses_m[k], camera)
+        inside = np.isfinite(px).all(axis=1) & (px[:, 0] >= margin) & (px[:, 1] >= margin) \
+            & (px[:, 0] <= camera.width - 1 - margin) & (px[:, 1] <= camera.height - 1 - margin)
+        todo = np.flatnonzero(inside & (have < 2))
+        if not len(todo):
+            continue
+        hits = truth(frame_of_pose[k], px[todo])
+        ok = np.isfinite(hits).all(axis=1)
+        for i, hit in zip(todo[ok], hits[ok]):
+            found[i, have[i]] = hit
+            have[i] += 1
+        if (have >= 2).all():
+            break
+    agree = (have == 2) & (np.linalg.norm(found[:, 0] - found[:, 1], axis=1) <= agree_m)
+    result = np.full((n, 3), np.nan)
+    result[agree] = found[agree, 0]
+    return result
+
+
+@dataclass(frozen=True)
+class LengthStats:
+    """Table 3 of the paper: errors of reconstructed lengths, mm per metre."""
+
+    count: int
+    mean: float
+    max: float
+    std: float
+
+
+def length_errors(points_m: FloatArray, truth_m: FloatArray, rng: np.random.Generator,
+                  min_length_m: float = 0.5, max_pairs: int = 2000) -> LengthStats:
+    """
+    Errors of lengths between random landmark pairs at least ``min_length_m`` apart.
+
+    :returns: absolute error per metre of true length, mm/m, over up to ``max_pairs`` pairs.
+    """
+    good = np.flatnonzero(np.isfinite(truth_m).all(axis=1))
+    if len(good) < 2:
+        return LengthStats(0, float('nan'), float('nan'), float('nan'))
+    i = rng.choice(good, size=4 * max_pairs)
+    j = rng.choice(good, size=4 * max_pairs)
+    true_len = np.linalg.norm(truth_m[i] - truth_m[j], axis=1)
+    keep = np.flatnonzero((i != j) & (true_len >= min_length_m))[:max_pairs]
+    if not len(keep):
+        return LengthStats(0, float('nan'), float('nan'), float('nan'))
+    measured = np.linalg.norm(points_m[i[keep]] - points_m[j[keep]], axis=1)
+    err = 1000.0 * np.abs(measured - true_len[keep]) / true_len[keep]
+    return LengthStats(len(keep), float(err.mean()), float(err.max()), float(err.std()))

@@ -1,0 +1,85 @@
+"""
+``absscale bench scale BAG...``: the metric scale and lengths of full runs against ground truth.
+
+For each simulator bag (with ``BAG.gt.json`` beside it) the whole graph runs losslessly; then
+the factor is compared with the one that best aligns the unscaled keyframe trajectory with the
+true camera centres, and lengths between reconstructed landmarks with the lengths between their
+true points (the paper's Table 3, in mm per metre).
+"""
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+PAPER_TABLE3 = {'indoor': (107, 1.4, 4.2, 0.7), 'outdoor': (281, 3.7, 8.5, 1.8)}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('bags', nargs='+', help='simulator bags (BAG.gt.json beside each)')
+    parser.add_argument('--config', default=None, help='config (default: from the scene)')
+    parser.add_argument('--json', action='store_true', help='print one JSON object per bag')
+
+
+def evaluate_bag(bag: str, config: str | None) -> dict[str, Any]:
+    """Run the graph on ``bag`` and measure it against its gt.json."""
+    from absscale_ros import conversions, graph
+    from absscale_ros.core import evaluation
+    from absscale_ros.sim import groundtruth
+    from rclpy.serialization import deserialize_message
+    gt = groundtruth.load(f'{bag}.gt.json')
+    scene = str(gt['scene']['name'])  # type: ignore[index]
+    report = graph.run_graph(bag, config or scene, graph.RunOptions(mode='step'))
+    msgs = {t: deserialize_message(d, c) for t, (c, d) in report.pop('_latest').items()}
+    scale_report = report['nodes'].get('scale', {})
+    result: dict[str, Any] = {'bag': bag, 'scene': scene, 'observable':
+                              bool(scale_report.get('observable')),
+                              'reason': scale_report.get('reason', '')}
+    if not result['observable'] or '/absscale/keyframe_path' not in msgs:
+        return result
+    frames = {int(f['stamp_ns']): i for i, f in enumerate(gt['frames'])}  # type: ignore
+    poses, stamps = conversions.path_msg_to_poses(msgs['/absscale/keyframe_path'])
+    idx = [frames[int(s)] for s in stamps]
+    gt_centres = np.array([np.array(gt['frames'][i]['T_world_cam'])[:3, 3]  # type: ignore
+                           for i in idx])
+    factor, sigma = scale_report['factor'], scale_report['sigma']
+    truth_factor = evaluation.true_scale(poses[:, :3], gt_centres)
+    result.update(factor=factor, sigma=sigma, true_factor=truth_factor,
+                  scale_error_mm_per_m=1000.0 * (factor / truth_factor - 1.0),
+                  claimed_sigma_mm_per_m=1000.0 * sigma / factor)
+    if '/scaled_cloud' in msgs and '/absscale/scaled_path' in msgs:
+        cloud = conversions.cloud_msg_to_array(msgs['/scaled_cloud'], skip_nans=True)
+        pts = np.stack([cloud[a] for a in 'xyz'], axis=1).astype(np.float64)
+        metric_poses, _ = conversions.path_msg_to_poses(msgs['/absscale/scaled_path'])
+        camera = groundtruth.camera_from_json(gt['camera'])  # type: ignore[arg-type]
+        truth = evaluation.landmark_truth(
+            pts, metric_poses, idx, camera,
+            lambda k, px: groundtruth.points_behind_pixels(gt, k, px))
+        stats = evaluation.length_errors(pts, truth, np.random.default_rng(0))
+        result.update(landmarks=len(pts), landmarks_with_truth=int(np.isfinite(truth[:, 0])
+                                                                   .sum()),
+                      lengths=stats.__dict__)
+    return result
+
+
+def run(args: argparse.Namespace) -> int:
+    rows = [evaluate_bag(bag, args.config) for bag in args.bags]
+    if args.json:
+        for row in rows:
+            print(json.dumps(row))
+        return 0
+    print(f'{"bag":<28} {"scale err mm/m":>14} {"claimed sigma":>13} {"n":>5} {"mean":>6} '
+          f'{"max":>6} {"std":>6}')
+    for r in rows:
+        if not r['observable']:
+            print(f'{Path(r["bag"]).name:<28} no scale: {r["reason"]}')
+            continue
+        lengths = r.get('lengths', {'count': 0, 'mean': np.nan, 'max': np.nan, 'std': np.nan})
+        print(f'{Path(r["bag"]).name:<28} {r["scale_error_mm_per_m"]:>14.2f} '
+              f'{r["claimed_sigma_mm_per_m"]:>13.2f} {lengths["count"]:>5} '
+              f'{lengths["mean"]:>6.2f} {lengths["max"]:>6.2f} {lengths["std"]:>6.2f}')
+    for kind, (n, mean, mx, std) in PAPER_TABLE3.items():
+        print(f'{"paper, " + kind:<28} {"":>14} {"":>13} {n:>5} {mean:>6.1f} {mx:>6.1f} '
+              f'{std:>6.1f}')
+    return 0
