@@ -25,7 +25,7 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
                          'ground truth (Table 3)'),
     ('detect',): ('absscale_ros.tools.detect', 'detect target vertices in image files'),
     ('bench', 'detect'): ('absscale_ros.tools.bench_detect', 'detection accuracy against gt.json'),
-    ('bench', 'sfm'): ('absscale_ros.tools.bench_sfm', 'incremental SfM against gt.json, pycolmap'),
+    ('bench', 'sfm'): ('absscale_ros.tools.bench_sfm', 'SfM against gt.json and pycolmap'),
     ('bench', 'keyframes'): ('absscale_ros.tools.bench_keyframes', 'keyframes against gt.json'),
 }
 
