@@ -24,6 +24,7 @@ from absscale_ros.sim.scene import Scene, SKY
 F32 = npt.NDArray[np.float32]
 FloatArray = npt.NDArray[np.float64]
 BLOCK = 4  # px between grid rays of the first pass
+CHUNK_ROWS = 48  # image rows shaded at once: arrays of ~60k pixels stay in the CPU cache
 # Rotated-grid 4x supersampling offsets (px): no two samples share a row or a column.
 SUBSAMPLES = ((-0.125, -0.375), (0.375, -0.125), (0.125, 0.375), (-0.375, 0.125))
 
@@ -138,18 +139,36 @@ class Renderer:
         :returns: (H, W) float32 camera-frame z, m (inf for sky); (H, W) int32 surface ids.
         """
         h, w = self.camera.height, self.camera.width
-        z, row, _, _ = self._hits(T_world_cam, self._tables(T_world_cam))
+        tab = self._tables(T_world_cam)
+        row, _, _ = self._rows(T_world_cam)
+        z = np.empty(h * w, np.float32)
+        for s in self._chunks():
+            z[s] = self._plane_z(tab, row[s], self._pix.x[s], self._pix.y[s])
         return z.reshape(h, w), row.reshape(h, w).astype(np.int32) - 1
+
+    def _chunks(self) -> list[slice]:
+        """Pixel ranges of CHUNK_ROWS image rows: per-pixel math then runs in the cache."""
+        h, w = self.camera.height, self.camera.width
+        return [slice(r * w, min(r + CHUNK_ROWS, h) * w) for r in range(0, h, CHUNK_ROWS)]
 
     def render(self, T_world_cam: FloatArray) -> Frame:
         """Render the view from ``T_world_cam`` (4x4, camera to world, m)."""
         h, w = self.camera.height, self.camera.width
         tab = self._tables(T_world_cam)
-        z, row, grid_lod, grid_z = self._hits(T_world_cam, tab)
+        row, grid_t, grid_s = self._rows(T_world_cam)
+        grid_z = (grid_t * self._grid.dz).astype(np.float32)
+        block_lod = self._block_lod(grid_z, grid_s, tab)
         pix = self._pix
-        lod = grid_lod + textures.lookup(self._lod_offset, row)
-        z0 = np.where(row == 0, np.float32(0.0), z)
-        colour = self._shade(T_world_cam, tab, row, z0, pix, None, lod, (h, w))
+        z = np.empty(h * w, np.float32)
+        lod = np.empty(h * w, np.float32)
+        colour = np.empty((h * w, 3), np.float32)
+        for s in self._chunks():
+            r = row[s]
+            z[s] = self._plane_z(tab, r, pix.x[s], pix.y[s])
+            lod[s] = block_lod[s] + textures.lookup(self._lod_offset, r)
+            z0 = np.where(r == 0, np.float32(0.0), z[s])
+            colour[s] = self._shade(T_world_cam, tab, r, z0, pix.x[s], pix.y[s], None, lod[s],
+                                    (-1, w))
         if self.scene.outdoor:
             self._fill_sky(colour, row, T_world_cam)
         surface = row.reshape(h, w)
@@ -157,28 +176,31 @@ class Renderer:
         edge = cv2.dilate(surface, _CROSS) != cv2.erode(surface, _CROSS)
         idx = np.flatnonzero(edge)
         if idx.size:
-            n = idx.size
-            dirs = np.concatenate([sub.dirs[idx] for sub in self._subs])
-            t, srf = self.cast(T_world_cam, dirs)
-            sub_row = (srf + 1).astype(np.uint8)
-            dz = np.concatenate([sub.dz[idx] for sub in self._subs])
-            sub_z = np.where(sub_row == 0, np.float32(0.0), t * dz)
-            xy = _Rays.__new__(_Rays)
-            xy.x = np.concatenate([sub.x[idx] for sub in self._subs])
-            xy.y = np.concatenate([sub.y[idx] for sub in self._subs])
-            xy.dirs = dirs
-            samples = self._shade(T_world_cam, tab, sub_row, sub_z, xy, None,
-                                  np.tile(lod[idx], len(self._subs)), None)
-            colour[idx] = samples.reshape(len(self._subs), n, 3).mean(axis=0)
+            self._antialias(T_world_cam, tab, idx, lod[idx], colour)
         return Frame(colour.reshape(h, w, 3), surface.astype(np.int32) - 1, z.reshape(h, w),
                      self._grid_points(T_world_cam, grid_z))
 
-    def _hits(self, T_world_cam: FloatArray,
-              tab: F32) -> tuple[F32, npt.NDArray[np.uint8], F32, F32]:
-        """
-        Per pixel: z-depth, surface row (id + 1, uint8), mip level part; the grid rays' z.
+    def _antialias(self, T_world_cam: FloatArray, tab: F32, idx: npt.NDArray[np.intp],
+                   lod: F32, colour: F32) -> None:
+        """Replace the colour of pixels ``idx`` by the mean of their four sub-pixel rays."""
+        dirs = np.concatenate([sub.dirs[idx] for sub in self._subs])
+        t, srf = self.cast(T_world_cam, dirs)
+        sub_row = (srf + 1).astype(np.uint8)
+        dz = np.concatenate([sub.dz[idx] for sub in self._subs])
+        sub_z = np.where(sub_row == 0, np.float32(0.0), t * dz)
+        x = np.concatenate([sub.x[idx] for sub in self._subs])
+        y = np.concatenate([sub.y[idx] for sub in self._subs])
+        samples = self._shade(T_world_cam, tab, sub_row, sub_z, x, y, dirs,
+                              np.tile(lod, len(self._subs)), None)
+        colour[idx] = samples.reshape(len(self._subs), idx.size, 3).mean(axis=0)
 
-        Grid pass, exact plane hits inside uniform blocks, casts in mixed blocks.
+    def _rows(self, T_world_cam: FloatArray) -> tuple[npt.NDArray[np.uint8], F32,
+                                                      npt.NDArray[np.int32]]:
+        """
+        Surface row (id + 1, uint8; 0 = sky) of every pixel, and the grid rays' hits.
+
+        The 4-px grid rays are cast first; a block whose four corners hit one face takes that
+        face, the pixels of the other blocks are cast one by one.
         """
         h, w = self.camera.height, self.camera.width
         gh, gw = self._grid_shape
@@ -187,22 +209,23 @@ class Renderer:
         uniform = (g[:-1, :-1] == g[1:, :-1]) & (g[:-1, :-1] == g[:-1, 1:]) \
             & (g[:-1, :-1] == g[1:, 1:])
         block = np.where(uniform, g[:-1, :-1] + 1, 0).astype(np.uint8)
-        row = np.ascontiguousarray(np.broadcast_to(
-            block[:, None, :, None], (h // BLOCK, BLOCK, w // BLOCK, BLOCK))).reshape(-1)
-        mixed = np.flatnonzero(np.repeat(np.repeat(~uniform, BLOCK, 0), BLOCK, 1))
-        pix = self._pix
+        shape = (h // BLOCK, BLOCK, w // BLOCK, BLOCK)
+        row = np.ascontiguousarray(np.broadcast_to(block[:, None, :, None], shape)).reshape(-1)
+        mixed = np.flatnonzero(np.broadcast_to(~uniform[:, None, :, None], shape))
+        if mixed.size:
+            _, srf = self.cast(T_world_cam, self._pix.dirs[mixed])
+            row[mixed] = (srf + 1).astype(np.uint8)
+        return row, gt, gs
+
+    @staticmethod
+    def _plane_z(tab: F32, row: npt.NDArray[np.uint8], x: F32, y: F32) -> F32:
+        """Z-depth of the hit on each pixel's face plane (exact ray-plane intersection)."""
         lk = textures.lookup
-        nd = lk(tab[0], row) * pix.x + lk(tab[1], row) * pix.y + lk(tab[2], row)
+        nd = lk(tab[0], row) * x + lk(tab[1], row) * y + lk(tab[2], row)
         with np.errstate(divide='ignore', invalid='ignore'):
             z = lk(tab[3], row) / nd
-        if mixed.size:
-            t, srf = self.cast(T_world_cam, pix.dirs[mixed])
-            r = (srf + 1).astype(np.uint8)
-            row[mixed] = r
-            z[mixed] = t * pix.dz[mixed]
         z[row == 0] = np.inf
-        grid_z = (gt * self._grid.dz).astype(np.float32)
-        return z, row, self._block_lod(grid_z, gs, tab), grid_z
+        return z
 
     def _block_lod(self, grid_z: F32, grid_surface: npt.NDArray[np.int32], tab: F32) -> F32:
         """
@@ -233,19 +256,18 @@ class Renderer:
         return pts.astype(np.float32).reshape(gh, gw, 3)
 
     def _shade(self, T_world_cam: FloatArray, tab: F32, row: npt.NDArray[np.uint8], z: F32,
-               rays: _Rays, idx: npt.NDArray[np.intp] | None, lod: F32,
+               x: F32, y: F32, dirs: F32 | None, lod: F32,
                shape: tuple[int, int] | None) -> F32:
         """
         Display-encoded colour: texture x tint x sqrt(Lambert irradiance); sky where row 0.
 
         :param row: (N,) surface id + 1; :param z: (N,) z-depth, 0 for sky;
-        :param rays: the rays, restricted to ``idx`` when given; :param lod: (N,) mip lod.
-        :param shape: image shape when the rays are a whole image (the sky is filled later).
+        :param x: (N,) undistorted normalised ray coordinates, ``y`` likewise;
+        :param dirs: (N, 3) unit rays to shade the sky with, or None when the caller fills it;
+        :param lod: (N,) mip lod; :param shape: image-like shape of the N rays, or None.
         :returns: (N, 3) float32 RGB, 8-bit scale.
         """
         lk = textures.lookup
-        x = rays.x if idx is None else rays.x[idx]
-        y = rays.y if idx is None else rays.y[idx]
         tx = z * (lk(tab[4], row) * x + lk(tab[5], row) * y + lk(tab[6], row))
         tx += lk(tab[7], row)
         ty = z * (lk(tab[8], row) * x + lk(tab[9], row) * y + lk(tab[10], row))
@@ -253,11 +275,10 @@ class Renderer:
         colour = textures.sample(lk(self._tex_id, row).astype(np.uint8), tx, ty, lod, shape)
         factor = cv2.merge([lk(f, row).reshape(-1, 1) for f in self._factor])
         colour *= factor.reshape(-1, 3)
-        if shape is None and self.scene.outdoor:
+        if dirs is not None and self.scene.outdoor:
             sky = np.flatnonzero(row == 0)
             if sky.size:
-                dirs = rays.dirs[sky] if idx is None else rays.dirs[idx[sky]]
-                colour[sky] = self._sky(dot(dirs, T_world_cam[2, :3]))
+                colour[sky] = self._sky(dot(dirs[sky], T_world_cam[2, :3]))
         return colour
 
     def _fill_sky(self, colour: F32, row: npt.NDArray[np.uint8], T_world_cam: FloatArray) -> None:
@@ -282,9 +303,10 @@ class Renderer:
 
 
 def rotate(vectors: F32, R: FloatArray) -> F32:
-    """``vectors @ R.T`` for (N, 3) arrays without BLAS (its threads spin and starve the rest)."""
-    Rf = np.asarray(R, np.float32)
-    return vectors[:, 0:1] * Rf[:, 0] + vectors[:, 1:2] * Rf[:, 1] + vectors[:, 2:3] * Rf[:, 2]
+    """``vectors @ R.T`` for (N, 3) float32 arrays, by OpenCV (BLAS threads spin and starve)."""
+    out = cv2.transform(np.ascontiguousarray(vectors, np.float32).reshape(-1, 1, 3),
+                        np.asarray(R, np.float32))
+    return out.reshape(-1, 3)
 
 
 def dot(vectors: F32, v: FloatArray) -> F32:

@@ -14,9 +14,9 @@ from absscale_ros.sim import camera as simcam
 from absscale_ros.sim import effects, groundtruth, render, scenes, trajectory
 
 START_STAMP_NS = 1_700_000_000 * 10 ** 9  # fixed, so the same seed gives the same bytes
-EFFECTS = {'indoor_paper': effects.EffectsConfig(exposure_s=0.014, read_noise_dn=1.6,
+EFFECTS = {'indoor_paper': effects.EffectsConfig(exposure_s=0.008, read_noise_dn=1.6,
                                                  shot_noise=0.05, brightness_target=112.0),
-           'outdoor_cube': effects.EffectsConfig(exposure_s=0.004, read_noise_dn=1.0,
+           'outdoor_cube': effects.EffectsConfig(exposure_s=0.003, read_noise_dn=1.0,
                                                  shot_noise=0.03, brightness_target=122.0)}
 
 

@@ -291,7 +291,7 @@ def sample(tex_ids: npt.NDArray[np.uint8], tx: F32, ty: F32, lod: F32,
         maps.append(m)
     if shape is not None:
         out = cv2.remap(at.image, maps[0].reshape(shape), maps[1].reshape(shape),
-                        cv2.INTER_LINEAR).reshape(-1, 3)
+                        cv2.INTER_LINEAR).reshape(-1, 3)  # shape may hold one -1
     else:
         out = remap_flat(at.image, maps[0], maps[1])
     return out.astype(np.float32)

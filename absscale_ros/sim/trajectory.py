@@ -14,7 +14,7 @@ import numpy.typing as npt
 from absscale_ros.sim.scene import FloatArray, Scene
 
 # Leg boundaries as fractions of the video: pan, approach, orbit, fast pan, step back.
-_LEGS = (0.0, 0.12, 0.45, 0.75, 0.83, 1.0)
+_LEGS = (0.0, 0.12, 0.45, 0.74, 0.84, 1.0)
 _ROTATION_LEGS = (0, 3)
 _RAMP_S = 0.3  # translation shake fades in/out over this time next to pure rotations
 
@@ -186,8 +186,8 @@ def _draw(w: dict[str, float], target: FloatArray, duration_s: float,
     az_end = az_arrive + (az_end - az_arrive + np.pi) % (2.0 * np.pi) - np.pi
     return Trajectory(
         duration_s, times, target, positions, (yaw0, 0.0, 0.0, 0.0, 0.0, 0.0),
-        np.deg2rad(rng.uniform(50.0, 75.0)) * rng.choice([-1.0, 1.0]),
-        _sines(rng, np.deg2rad(6.0), 0.05, 0.25), _sines(rng, np.deg2rad(0.35), 1.0, 6.0),
+        np.deg2rad(rng.uniform(35.0, 50.0)) * rng.choice([-1.0, 1.0]),
+        _sines(rng, np.deg2rad(4.0), 0.05, 0.2), _sines(rng, np.deg2rad(0.35), 1.0, 6.0),
         _sines(rng, 0.002, 2.0, 7.0),
         _Sines(np.array([[0.008, 0.008, 0.015]]), np.array([[0.9, 0.9, 1.8]]),
                rng.uniform(0.0, 2.0 * np.pi, (1, 3))),

@@ -42,6 +42,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--frame-id', default='camera', help='header.frame_id of both topics')
     parser.add_argument('--no-pipeline', action='store_true',
                         help='finish each frame before rendering the next (same output)')
+    parser.add_argument('--contact-sheet', type=Path, default=None, metavar='PNG',
+                        help='also save 12 frames with their ground-truth vertices as a PNG')
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -108,8 +110,10 @@ def make_encoder(args: argparse.Namespace) -> tuple[str, str, Callable[..., byte
 
 def simulate(args: argparse.Namespace) -> dict[str, float]:
     """Write the bag and gt.json; returns timing figures (s, frames/s)."""
+    import cv2
+
     from absscale_ros import bagio, conversions
-    from absscale_ros.sim import groundtruth, simulation
+    from absscale_ros.sim import contact, groundtruth, simulation
     width, height = parse_size(args.size)
     cfg = simulation.SimConfig(args.scene, args.seed, args.frames, width, height,
                                variant=parse_variant(args.variant))
@@ -124,7 +128,9 @@ def simulate(args: argparse.Namespace) -> dict[str, float]:
                      'image_format': 'raw' if args.raw else args.format,
                      'jpeg_quality': args.quality if not args.raw and args.format == 'jpeg'
                      else None, 'frame_id': args.frame_id})
-    frames = []
+    frames, thumbs = [], []
+    every = max(1, cfg.frames // 12)
+    centre = sim.scene.targets[0].vertices_world_m.mean(axis=0)
     t1 = time.perf_counter()
     with bagio.BagWriter(args.out) as writer:
         for f in sim.frames(encode=encode, pipelined=not args.no_pipeline):
@@ -132,11 +138,18 @@ def simulate(args: argparse.Namespace) -> dict[str, float]:
             writer.write(args.info_topic, INFO_TYPE, f.stamp_ns, serialize(info, INFO_TYPE))
             writer.write(topic, msgtype, f.stamp_ns, f.data)
             frames.append(f.truth)
+            if getattr(args, 'contact_sheet', None) and f.index % every == 0 \
+                    and len(thumbs) < 12:
+                thumbs.append(contact.thumbnail(f.image_bgr, f.truth, centre))
             if (f.index + 1) % 60 == 0:
                 LOG.info('%d / %d frames', f.index + 1, cfg.frames)
     loop_s = time.perf_counter() - t1
     gt['frames'] = frames
     groundtruth.save(gt, gt_path(args.out))
+    if thumbs:
+        variant = ', '.join(f'{k}={v}' for k, v in sim.scene.variant.items())
+        title = f'{cfg.scene} seed {cfg.seed} ({variant}), {width}x{height}'
+        cv2.imwrite(str(args.contact_sheet), contact.sheet(thumbs, 3, title))
     return {'setup_s': setup_s, 'loop_s': loop_s, 'fps': cfg.frames / loop_s}
 
 
