@@ -253,7 +253,6 @@ class KeyframeSelector:
         grey = self._grey(image_bgr)
         cam = self._track_camera(camera, grey)
         sharp = self._sharpness_ratio(grey)
-        prev = self._prev
         self._track(grey)
         self._prev = grey
         blurred = sharp < self.cfg.min_sharpness_ratio
@@ -280,7 +279,6 @@ class KeyframeSelector:
         low_tracks = tracked < self.cfg.min_tracked_ratio
         if flow_px < self.cfg.min_flow_px and not low_tracks:
             return decide(False, 'waiting')
-        self._check_back(prev, grey)
         parallax_px, flow_step_px = self._step_parallax_px(cam)
         if flow_step_px > self.cfg.max_step_flow_px:
             return decide(False, 'fast')  # a whip pan: smeared corners, unreliable tracks
@@ -293,20 +291,6 @@ class KeyframeSelector:
             # going; start again from here rather than wait on a handful of far corners.
             return self._lost(grey, decide, False) if low_tracks else decide(False, 'degenerate')
         return self._by_baseline(geo.baseline_ratio, low_tracks, target_area, decide)
-
-    def _check_back(self, prev: npt.NDArray[np.uint8] | None,
-                    grey: npt.NDArray[np.uint8]) -> None:
-        """Before a decision, drop corners that do not track back to where they came from."""
-        if prev is None or self._last_step is None or self._pts is None or not len(self._pts):
-            return
-        back, status, _ = cv2.calcOpticalFlowPyrLK(grey, prev, self._pts, None,
-                                                   winSize=(15, 15), maxLevel=3)
-        dist_px = np.linalg.norm((back - self._last_step).reshape(-1, 2), axis=1)
-        ok = status.ravel().astype(bool) & (dist_px <= 1.0)
-        if np.count_nonzero(ok) >= self.cfg.min_inliers:
-            assert self._pts0 is not None
-            self._pts, self._pts0, self._last_step = \
-                self._pts[ok], self._pts0[ok], self._last_step[ok]
 
     def _step_parallax_px(self, cam: CameraModel) -> tuple[float, float]:
         """
