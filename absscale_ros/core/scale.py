@@ -203,6 +203,8 @@ class ObjectVertices:
     :param n_obs: (N,) keyframes that observed each vertex.
     :param angles_deg: (N,) widest triangulation angle of each vertex, degrees.
     :param object_id: the object's id, for messages.
+    :param alternatives: other sizes the object may have (e.g. A4 when ``size_m`` is letter);
+        the one the vertices fit is used, and a tie refuses the object.
     """
 
     kind: str
@@ -211,6 +213,33 @@ class ObjectVertices:
     n_obs: npt.NDArray[np.int64]
     angles_deg: FloatArray
     object_id: int = 0
+    alternatives: tuple[tuple[float, ...], ...] = ()
+
+
+def _which_model(points: FloatArray, obj: ObjectVertices, cfg: ScaleConfig) -> FloatArray:
+    """
+    The model of ``obj`` (or of one of its ``alternatives``) that the vertices fit.
+
+    :raises DegenerateGeometryError: when none fits, or two fit nearly equally well.
+    """
+    sizes = [obj.size_m, *obj.alternatives]
+    if len(sizes) == 1:
+        return model_vertices_m(obj.kind, obj.size_m)
+    misfits = []
+    for size in sizes:
+        try:
+            _, misfit = assign_to_model(points, model_vertices_m(obj.kind, size), cfg)
+        except DegenerateGeometryError:
+            misfit = np.inf
+        misfits.append(misfit)
+    order = np.argsort(misfits)
+    best, second = misfits[order[0]], misfits[order[1]]
+    if not np.isfinite(best):
+        raise DegenerateGeometryError(f'vertices fit none of the sizes {sizes}')
+    if second < cfg.ambiguity_ratio * max(best, 1e-4):
+        raise DegenerateGeometryError(f'vertices fit both {sizes[order[0]]} and '
+                                      f'{sizes[order[1]]} m: set the size in the config')
+    return model_vertices_m(obj.kind, sizes[order[0]])
 
 
 def estimate(objects: list[ObjectVertices], cfg: ScaleConfig) -> ScaleEstimate:
@@ -228,8 +257,8 @@ def estimate(objects: list[ObjectVertices], cfg: ScaleConfig) -> ScaleEstimate:
             rejected.append(f'object {obj.object_id}: {len(pts)} well-observed vertices < '
                             f'{cfg.min_vertices}')
             continue
-        model = model_vertices_m(obj.kind, obj.size_m)
         try:
+            model = _which_model(pts, obj, cfg)
             pts, dropped = _drop_outlier_vertex(pts, model, cfg)
             m, t = object_lengths(pts, model, cfg)
         except DegenerateGeometryError as err:
@@ -257,11 +286,14 @@ def estimate(objects: list[ObjectVertices], cfg: ScaleConfig) -> ScaleEstimate:
 def group_objects(points: FloatArray, object_ids: npt.NDArray[np.int64],
                   target_types: npt.NDArray[np.int64], n_obs: npt.NDArray[np.int64],
                   angles_deg: FloatArray, sheet_m: tuple[float, float],
-                  cube_edge_m: float) -> list[ObjectVertices]:
+                  cube_edge_m: float,
+                  sheet_alternatives: tuple[tuple[float, float], ...] = ()
+                  ) -> list[ObjectVertices]:
     """
     Split labelled target landmarks into one ``ObjectVertices`` per object.
 
     :param target_types: (N,) 0 sheet, 1 cube (``targets.TARGET_TYPE_CODES``).
+    :param sheet_alternatives: other sheet sizes to try (see ``ObjectVertices``).
     """
     objects = []
     for oid in np.unique(object_ids):
@@ -269,9 +301,10 @@ def group_objects(points: FloatArray, object_ids: npt.NDArray[np.int64],
         kinds = np.unique(target_types[sel])
         if len(kinds) != 1 or int(kinds[0]) not in (0, 1):
             continue  # mixed or unknown kinds under one id: not a target we can measure
-        kind, size = ('sheet', tuple(sheet_m)) if kinds[0] == 0 else ('cube', (cube_edge_m,))
+        sheet = kinds[0] == 0
+        kind, size = ('sheet', tuple(sheet_m)) if sheet else ('cube', (cube_edge_m,))
         objects.append(ObjectVertices(kind, size, points[sel], n_obs[sel], angles_deg[sel],
-                                      int(oid)))
+                                      int(oid), sheet_alternatives if sheet else ()))
     return objects
 
 

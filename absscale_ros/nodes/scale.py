@@ -31,9 +31,14 @@ class ScaleNode(Node):
         p = {x.name: x.value for x in self.declare_parameters('', [
             ('sheet', 'letter'), ('sheet_size_m', [0.0, 0.0]), ('cube_edge_m', 0.8),
             ('frame_id', 'map'), ('min_change', 0.001)])}
-        model = targets.sheet_model(p['sheet'], tuple(p['sheet_size_m'])
-                                    if min(p['sheet_size_m']) > 0 else None)
-        self._sheet_m, self._cube_m = (model.width_m, model.height_m), p['cube_edge_m']
+        custom = tuple(p['sheet_size_m']) if min(p['sheet_size_m']) > 0 else None
+        # 'auto': letter or A4, whichever the reconstructed corners fit (a tie claims nothing).
+        names = list(targets.SHEET_SIZES_M) if p['sheet'] == 'auto' and not custom \
+            else [p['sheet']]
+        sizes = [(m.width_m, m.height_m) for m in
+                 (targets.sheet_model(n, custom) for n in names)]
+        self._sheet_m, self._sheet_alternatives = sizes[0], tuple(sizes[1:])
+        self._cube_m = p['cube_edge_m']
         self._frame, self._min_change = p['frame_id'], p['min_change']
         self._cloud_pub = self.create_publisher(PointCloud2, '/scaled_cloud', common.LATCHED)
         self._path_pub = self.create_publisher(Path, '/absscale/scaled_path', common.LATCHED)
@@ -57,7 +62,8 @@ class ScaleNode(Node):
         xyz = np.stack([pts[a] for a in 'xyz'], axis=1).astype(np.float64) if len(pts) else \
             np.zeros((0, 3))
         objects = scale.group_objects(xyz, *(np.asarray(pts[f]) for f in (
-            'object_id', 'target_type', 'n_obs', 'angle_deg')), self._sheet_m, self._cube_m) \
+            'object_id', 'target_type', 'n_obs', 'angle_deg')), self._sheet_m, self._cube_m,
+            self._sheet_alternatives) \
             if len(pts) else []
         outputs: list[str] = []
         try:

@@ -95,3 +95,14 @@ def test_paper_regression_and_its_degenerate_case() -> None:
     assert sf == pytest.approx(0.8) and b == pytest.approx(0.0, abs=1e-12)
     with pytest.raises(DegenerateGeometryError, match='diagonals'):
         scale.regression_scale(np.array([1.0, 1.01, 0.99]), np.full(3, 0.8))
+
+
+def test_sheet_size_chosen_by_shape_or_refused() -> None:
+    rng = np.random.default_rng(4)
+    a4 = _reconstructed('sheet', (0.210, 0.297), 0.3, 0.0002, rng)
+    auto = scale.ObjectVertices('sheet', LETTER, a4.points, a4.n_obs, a4.angles_deg,
+                                alternatives=((0.210, 0.297),))
+    assert scale.estimate([auto], CFG).factor == pytest.approx(0.3, rel=0.005)
+    only_letter = scale.ObjectVertices('sheet', LETTER, a4.points, a4.n_obs, a4.angles_deg)
+    with pytest.raises(NotObservableError):  # an A4 sheet is never scaled as letter
+        scale.estimate([only_letter], CFG)
