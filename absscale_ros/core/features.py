@@ -22,11 +22,14 @@ class FeatureConfig:
     ratio: float = 0.8  # Lowe's ratio test on the two nearest descriptors
     ransac_px: float = 1.5  # epipolar distance threshold of the fundamental-matrix check
     min_inliers: int = 20  # fewer verified matches than this is no match at all
+    max_width_px: int = 960  # detect on a copy downscaled to this width (0: full size)
+    flann_checks: int = 0  # > 0: approximate k-d tree matching checking this many leaves; 0: exact
 
     def __post_init__(self) -> None:
         if self.detector not in DETECTORS:
             raise ValueError(f'detector must be one of {DETECTORS}, got {self.detector!r}')
-        if self.max_features < 8 or not 0.0 < self.ratio < 1.0 or self.ransac_px <= 0.0:
+        if self.max_features < 8 or not 0.0 < self.ratio < 1.0 or self.ransac_px <= 0.0 or \
+                self.max_width_px < 0 or self.flann_checks < 0:
             raise ValueError(f'bad feature config {self}')
         if self.min_inliers < 8:
             raise ValueError('min_inliers must be >= 8 (eight-point fundamental matrix)')
@@ -79,12 +82,15 @@ def detect(image_bgr: npt.NDArray[np.uint8], camera: CameraModel, cfg: FeatureCo
     :param image_bgr: (H, W, 3) uint8 image.
     """
     gray = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY)
-    kps, desc = _detector(cfg).detectAndCompute(gray, None)
+    f = cfg.max_width_px / gray.shape[1] if 0 < cfg.max_width_px < gray.shape[1] else 1.0
+    # SIFT doubles its input first, so a 960 px copy still localises to about a full-size pixel.
+    small = gray if f == 1.0 else cv2.resize(gray, None, fx=f, fy=f, interpolation=cv2.INTER_AREA)
+    kps, desc = _detector(cfg).detectAndCompute(small, None)
     if desc is None or not kps:
         return Features(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros((0, 128), np.float32),
                         np.zeros((0, 3), np.uint8))
     order = np.argsort([-k.response for k in kps], kind='stable')[:cfg.max_features]
-    xy = np.array([kps[i].pt for i in order], np.float64)
+    xy = (np.array([kps[i].pt for i in order], np.float64) + 0.5) / f - 0.5  # pixel centres
     ij = np.clip(np.rint(xy).astype(int), 0, [gray.shape[1] - 1, gray.shape[0] - 1])
     colours = image_bgr[ij[:, 1], ij[:, 0], ::-1].copy()
     return Features(xy, undistort_px(camera, xy), desc[order], colours)
@@ -98,8 +104,13 @@ def match(a: Features, b: Features, cfg: FeatureConfig) -> IndexArray:
     """
     if len(a.descriptors) < 2 or len(b.descriptors) < 2:
         return np.zeros((0, 2), np.int64)
-    norm = cv2.NORM_L2 if a.descriptors.dtype == np.float32 else cv2.NORM_HAMMING
-    matcher = cv2.BFMatcher(norm)
+    if a.descriptors.dtype == np.float32 and cfg.flann_checks > 0:
+        cv2.setRNGSeed(0)  # the k-d trees are randomised: the same input gives the same matches
+        matcher = cv2.FlannBasedMatcher({'algorithm': 1, 'trees': 4},
+                                        {'checks': cfg.flann_checks})
+    else:
+        matcher = cv2.BFMatcher(cv2.NORM_L2 if a.descriptors.dtype == np.float32
+                                else cv2.NORM_HAMMING)
     pairs = []
     for m, n in (p for p in matcher.knnMatch(a.descriptors, b.descriptors, k=2) if len(p) == 2):
         if m.distance < cfg.ratio * n.distance:

@@ -74,6 +74,8 @@ def link(m: sfm_map.SfmMap, K: FloatArray, new: sfm_map.MapKeyframe,
             ids[[int(x) not in m.landmarks for x in ids]] = -1
         for i, j in _pairs(a, b, F, cfg):
             if b.landmark_of[j] >= 0:
+                if a.landmark_of[i] >= 0 and a.landmark_of[i] != b.landmark_of[j]:
+                    merge(m, int(b.landmark_of[j]), int(a.landmark_of[i]))
                 continue
             if a.landmark_of[i] >= 0:
                 b.landmark_of[j] = a.landmark_of[i]
@@ -91,6 +93,25 @@ def link(m: sfm_map.SfmMap, K: FloatArray, new: sfm_map.MapKeyframe,
             a.landmark_of[i] = b.landmark_of[j] = lm_id
             created += 1
     return created
+
+
+def merge(m: sfm_map.SfmMap, keep: int, drop: int) -> None:
+    """
+    Make vertex landmark ``drop`` part of ``keep`` (one physical vertex reached along two
+    chains of matches): its observations move over unless ``keep`` has one in that keyframe.
+    """
+    if keep not in m.landmarks or drop not in m.landmarks:
+        return
+    kept = m.landmarks[keep]
+    for kf_id, uv in m.landmarks[drop].obs_px.items():
+        if kf_id not in kept.obs_px:
+            kept.obs_px[kf_id] = uv
+    for kf in m.keyframes.values():
+        if kf.vertices is not None:
+            lof = kf.vertices.landmark_of
+            lof[lof == drop] = keep
+    m.landmarks[drop].obs_px.clear()  # vertex observations have no keypoint index to clear
+    del m.landmarks[drop]
 
 
 def targets(m: sfm_map.SfmMap) -> tuple[FloatArray, npt.NDArray[np.int64]]:

@@ -31,23 +31,42 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--frames', type=int, default=300, help='frames of a --sim video')
     parser.add_argument('--width', type=int, default=1280, help='image width of a --sim video')
     parser.add_argument('--every', type=int, default=10, help='keyframe = every Nth frame')
+    parser.add_argument('--select', action='store_true',
+                        help='keyframes from the keyframe selector (ground-truth target areas)')
+    parser.add_argument('--detector', action='store_true',
+                        help='vertices from the vertex detector instead of ground truth + noise')
+    parser.add_argument('--run', action='append', default=[], metavar='DIR',
+                        help='instead: scale error of the `absscale run` output DIR of each BAG')
     parser.add_argument('--vertex-noise-px', type=float, default=0.3)
     parser.add_argument('--seed', type=int, default=0, help='seed of noise and RANSAC')
     parser.add_argument('--colmap', action='store_true', help='also run pycolmap on the keyframes')
     parser.add_argument('--json', action='store_true', help='print the figures as JSON')
 
 
-def _from_bag(path: str, every: int) -> tuple[CameraModel, dict[str, Any], Iterator[Keyframe]]:
+def _keyframe_indices(path: str, gt: dict[str, Any], args: argparse.Namespace) -> set[int]:
+    if not args.select:
+        return set(range(0, len(gt['frames']), args.every))
+    from absscale_ros.core import keyframes
+    from absscale_ros.tools import bench_keyframes
+    decisions, _ = bench_keyframes.select(path, keyframes.KeyframeConfig(),
+                                          bench_keyframes.gt_areas(gt))
+    stamps = {d.stamp_ns for d in decisions if d.keyframe}
+    return {k for k, fr in enumerate(gt['frames']) if fr['stamp_ns'] in stamps}
+
+
+def _from_bag(path: str, args: argparse.Namespace) -> tuple[CameraModel, dict[str, Any],
+                                                            Iterator[Keyframe]]:
     with open(path + '.gt.json') as f:
         gt = json.load(f)
     cam = gt['camera']
     camera = CameraModel(cam['width'], cam['height'], np.array(cam['K'], float),
                          np.array(cam['D'], float), cam['distortion_model'])
+    chosen = _keyframe_indices(path, gt, args)
 
     def frames() -> Iterator[Keyframe]:
         with bagio.open_bag(path) as reader:
             for k, msg in enumerate(reader.messages([gt['bag']['image_topic']])):
-                if k % every:
+                if k not in chosen:
                     continue
                 m = reader.deserialize(msg)
                 img = (conversions.compressed_msg_to_bgr(m) if 'Compressed' in msg.msgtype
@@ -94,17 +113,28 @@ def _vertices(truth: dict[str, Any], gt: dict[str, Any], rng: np.random.Generato
                         np.array(px, float).reshape(-1, 2), tuple(kinds)), true)
 
 
+def _detected(image: np.ndarray, camera: CameraModel, gt: dict[str, Any]) -> vm.Vertices | None:
+    """The vertex detector's vertices of one keyframe (target type from the ground truth)."""
+    from absscale_ros.core import detect, sfm_outputs
+    cube = any(t['kind'] == 'cube' for t in gt['targets'])
+    result = detect.detect(image, detect.DetectConfig(target='cube' if cube else 'letter'),
+                           camera.K)
+    return sfm_outputs.vertices_from_rows(detect.vertices_array(result))
+
+
 def bench_one(camera: CameraModel, gt: dict[str, Any], frames: Iterator[Keyframe],
               args: argparse.Namespace) -> dict[str, Any]:
     """Run the incremental SfM over the keyframes and score it."""
     rng = np.random.default_rng(args.seed)
     engine = sfm.IncrementalSfm(camera, sfm.SfmConfig(), np.random.default_rng(args.seed))
-    times_s, poses, truth, images, results = [], {}, {}, [], []
+    times_s, cpu_s, poses, truth, images, results = [], [], {}, {}, [], []
     for kf_id, (stamp, img, T, fr) in enumerate(frames):
-        vertices, true_ids = _vertices(fr, gt, rng, args.vertex_noise_px)
-        t0 = time.perf_counter()
+        vertices, true_ids = (_detected(img, camera, gt), None) if args.detector else \
+            _vertices(fr, gt, rng, args.vertex_noise_px)
+        t0, c0 = time.perf_counter(), time.process_time()
         results.append(engine.add_keyframe(stamp, img, vertices))
         times_s.append(time.perf_counter() - t0)
+        cpu_s.append(time.process_time() - c0)
         poses[kf_id], truth[kf_id] = T, true_ids
         if args.colmap:
             images.append(img)
@@ -115,7 +145,8 @@ def bench_one(camera: CameraModel, gt: dict[str, Any], frames: Iterator[Keyframe
     out['final_batch_s'] = final_s
     out.update(keyframes_in=len(times_s), sfm_time_s=float(np.sum(times_s)) + final_s,
                median_update_ms=1e3 * float(np.median(times_s)),
-               max_update_ms=1e3 * float(np.max(times_s)), last_message=results[-2].message,
+               max_update_ms=1e3 * float(np.max(times_s)),
+               median_update_cpu_ms=1e3 * float(np.median(cpu_s)), last_message=results[-2].message,
                statuses={s: sum(r.status == s for r in results) for s in
                          {r.status for r in results}})
     if args.colmap:
@@ -125,7 +156,7 @@ def bench_one(camera: CameraModel, gt: dict[str, Any], frames: Iterator[Keyframe
 
 
 def score(engine: sfm.IncrementalSfm, poses: dict[int, np.ndarray],
-          truth: dict[int, list[tuple[int, int]]], gt: dict[str, Any]) -> dict[str, Any]:
+          truth: dict[int, Any], gt: dict[str, Any]) -> dict[str, Any]:
     """Figures of the largest segment against ground truth."""
     seg = max(engine.segments, key=lambda s: len(s.map.keyframes))
     m = seg.map
@@ -148,10 +179,13 @@ def score(engine: sfm.IncrementalSfm, poses: dict[int, np.ndarray],
     for lm_id, lm in m.landmarks.items():
         if lm.label is None:
             continue
+        p = align.apply(s, R, t, lm.point_world[None])[0]
         kf = next(iter(lm.obs_px))
+        if truth[kf] is None:  # detected vertices: the nearest true vertex
+            errs.append(float(np.min(np.linalg.norm(verts - p, axis=1))))
+            continue
         j = int(np.flatnonzero(m.keyframes[kf].vertices.landmark_of == lm_id)[0])
         obj, vid = truth[kf][j]
-        p = align.apply(s, R, t, lm.point_world[None])[0]
         true_m = np.array(gt['targets'][obj]['vertices_world_m'][vid])
         errs.append(float(np.linalg.norm(p - true_m)))
     out['vertices'] = len(errs)
@@ -169,11 +203,46 @@ def _line(name: str, r: dict[str, Any]) -> str:
             f'rmse {f("centre_rmse_pct", ".3f")}% reproj {f("reprojection_rms_px", ".2f")}px '
             f'vtx {r.get("vertices", 0)} err med/max {f("vertex_err_median_pct", ".3f")}/'
             f'{f("vertex_err_max_pct", ".3f")}% upd med/max {f("median_update_ms", ".0f")}/'
-            f'{f("max_update_ms", ".0f")}ms')
+            f'{f("max_update_ms", ".0f")}ms cpu med {f("median_update_cpu_ms", ".0f")}ms')
+
+
+def scale_error(bag: str, run_dir: str) -> dict[str, Any]:
+    """
+    The scale node's factor of an ``absscale run`` against the truth: the Umeyama scale that
+    maps the run's keyframe centres onto the true ones; error in mm per metre.
+    """
+    from pathlib import Path
+    from absscale_ros.core import cloud
+    report = json.loads((Path(run_dir) / 'report.json').read_text())
+    sc = report['nodes'].get('scale', {})
+    out: dict[str, Any] = {'factor': sc.get('factor'), 'reason': sc.get('reason', '')}
+    tum = Path(run_dir) / 'trajectory.tum'
+    if sc.get('factor') is None or not tum.exists():
+        return out
+    with open(bag + '.gt.json') as f:
+        truth = {fr['stamp_ns']: np.array(fr['T_world_cam']) for fr in json.load(f)['frames']}
+    stamps, poses = cloud.read_tum(tum)
+    keep = [i for i, st in enumerate(stamps) if int(st) in truth]
+    gt_c = np.array([truth[int(stamps[i])][:3, 3] for i in keep])
+    s, _, _ = align.umeyama(poses[keep, :3], gt_c)
+    metric = report.get('outputs', {}).get('trajectory.tum', {}).get('units') == 'metres' or \
+        (Path(run_dir) / 'scaled_cloud.ply').exists()
+    true_factor = s * sc['factor'] if metric else s  # trajectory.tum is metric once scaled
+    out.update(true_factor=true_factor, keyframes=len(keep),
+               error_mm_per_m=1e3 * (sc['factor'] / true_factor - 1.0))
+    return out
 
 
 def run(args: argparse.Namespace) -> int:
-    sources = [(b, lambda b=b: _from_bag(b, args.every)) for b in args.bags]
+    if args.run:
+        for bag, run_dir in zip(args.bags, args.run, strict=True):
+            e = scale_error(bag, run_dir)
+            print(f'{bag}: ' + (f'factor {e["factor"]:.6g} m/unit, true {e["true_factor"]:.6g}, '
+                                f'error {e["error_mm_per_m"]:+.2f} mm/m over {e["keyframes"]} '
+                                f'keyframes' if 'true_factor' in e else
+                                f'no scale ({e["reason"]})'))
+        return 0
+    sources = [(b, lambda b=b: _from_bag(b, args)) for b in args.bags]
     sources += [(s, lambda s=s: _from_sim(s, args)) for s in args.sim]
     if not sources:
         print('absscale bench sfm: give BAG... or --sim SCENE:SEED')

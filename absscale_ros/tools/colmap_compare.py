@@ -53,7 +53,8 @@ def run(camera: CameraModel, images_bgr: list[np.ndarray],
     for image in rec.images.values():
         if not image.has_pose:
             continue
-        est.append(image.projection_center())
+        # pycolmap 4 returns the centre as a (3, 1) column: flatten, or the alignment is nonsense.
+        est.append(np.asarray(image.projection_center(), np.float64).reshape(3))
         gt.append(T_world_cams_gt[int(Path(image.name).stem)][:3, 3])
     out = {'time_s': elapsed, 'registered': len(est), 'models': len(maps)}
     if len(est) >= 3:
