@@ -60,6 +60,8 @@ class KeyframeConfig:
         the best pure rotation is below this fraction of its frame-to-frame motion is turning
         on the spot (inside a pure rotation every frame shares the centre of the frame that
         started it) and waits.
+    :param turn_hold_frames: frames after a turn (or a too fast swing) before a keyframe:
+        a pan that slows to reverse is still a pan.
     :param sigma_px: corner position noise at tracking scale, px (GRIC and RANSAC).
     :param min_inliers: two-view inliers needed to trust the geometry.
     """
@@ -82,6 +84,7 @@ class KeyframeConfig:
     max_step_flow_px: float = 40.0
     min_turn_flow_px: float = 3.0
     min_step_parallax_fraction: float = 0.1
+    turn_hold_frames: int = 6
     sigma_px: float = 1.0
     min_inliers: int = 15
 
@@ -96,6 +99,8 @@ class KeyframeConfig:
                              '<= max_baseline_ratio')
         if self.max_step_flow_px <= self.min_turn_flow_px:
             raise ValueError('max_step_flow_px must exceed min_turn_flow_px')
+        if self.turn_hold_frames < 0:
+            raise ValueError('turn_hold_frames must be >= 0')
         if self.lost_tracks < 5 or self.min_inliers < 5 or self.no_target_factor < 1.0:
             raise ValueError('lost_tracks >= 5, min_inliers >= 5, no_target_factor >= 1')
         if min(self.sigma_px, self.max_track_error) <= 0.0 or min(
@@ -171,6 +176,7 @@ class KeyframeSelector:
         self._last_step: npt.NDArray[np.float32] | None = None
         self._seeded = 0
         self._in_loss = False
+        self._since_turn = 1 << 30  # frames since the camera last turned on the spot
         self._have_keyframe = False
         self._lost_since_keyframe = False
         self.lost_count = 0
@@ -267,6 +273,8 @@ class KeyframeSelector:
             return Decision(stamp_ns, keyframe, reason, sharp, tracked, ratio, target_area,
                             after_loss)
 
+        turning = self._turning(cam) if n >= self.cfg.lost_tracks else ''
+        self._since_turn = 0 if turning else self._since_turn + 1
         if not self._have_keyframe and not blurred:
             return decide(True, 'first')
         if n < self.cfg.lost_tracks:
@@ -279,18 +287,28 @@ class KeyframeSelector:
         low_tracks = tracked < self.cfg.min_tracked_ratio
         if flow_px < self.cfg.min_flow_px and not low_tracks:
             return decide(False, 'waiting')
-        parallax_px, flow_step_px = self._step_parallax_px(cam)
-        if flow_step_px > self.cfg.max_step_flow_px:
-            return decide(False, 'fast')  # a whip pan: smeared corners, unreliable tracks
-        if flow_step_px >= self.cfg.min_turn_flow_px \
-                and parallax_px < self.cfg.min_step_parallax_fraction * flow_step_px:
-            return self._lost(grey, decide, False) if low_tracks else decide(False, 'rotating')
+        if turning or self._since_turn < self.cfg.turn_hold_frames:
+            reason = turning or 'rotating'
+            return self._lost(grey, decide, False) if low_tracks else decide(False, reason)
         geo = self._geometry(cam)
         if geo is None or geo.degenerate:
             # Few corners left and still no baseline: the overlap with the last keyframe is
             # going; start again from here rather than wait on a handful of far corners.
             return self._lost(grey, decide, False) if low_tracks else decide(False, 'degenerate')
         return self._by_baseline(geo.baseline_ratio, low_tracks, target_area, decide)
+
+    def _turning(self, cam: CameraModel) -> str:
+        """'fast' or 'rotating' when the camera swings, or turns on the spot; else ''."""
+        if self._last_step is None or self._pts is None or len(self._pts) < 5:
+            return ''
+        flow_px = float(np.median(np.linalg.norm((self._pts - self._last_step).reshape(-1, 2),
+                                                 axis=1)))
+        if flow_px > self.cfg.max_step_flow_px:
+            return 'fast'  # a whip pan: smeared corners, unreliable tracks
+        if flow_px < self.cfg.min_turn_flow_px:
+            return ''
+        parallax_px, _ = self._step_parallax_px(cam)
+        return 'rotating' if parallax_px < self.cfg.min_step_parallax_fraction * flow_px else ''
 
     def _step_parallax_px(self, cam: CameraModel) -> tuple[float, float]:
         """
