@@ -1,5 +1,5 @@
 """
-Two-view test of keyframe selection: is there a usable baseline between two views?
+Two-view test of keyframe selection (is there a usable baseline?) and its image cues.
 
 Pure rotation and tiny baselines are told apart from real translation with Torr's GRIC
 (Geometric Robust Information Criterion, Torr 1998; used for keyframes by Rashidi et al. 2013):
@@ -13,6 +13,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 import numpy.typing as npt
+
+from absscale_ros.core.types import CameraModel
 
 FloatArray = npt.NDArray[np.float64]
 _R_DATA = 4.0  # dimension of one observation (two 2-D points)
@@ -174,3 +176,31 @@ def analyse(xy0: FloatArray, xy1: FloatArray, sigma_norm: float, min_inliers: in
     _, R, t, _ = cv2.recoverPose(E, a, b, np.eye(3))
     ratio = baseline_ratio(R, t.ravel(), a, b)
     return Motion(n_inl, g_e, g_rot, parallax, not np.isfinite(ratio), ratio)
+
+
+def sharpness(grey: npt.NDArray[np.uint8]) -> float:
+    """Variance of the Laplacian of a grey image (higher is sharper)."""
+    return float(cv2.Laplacian(grey, cv2.CV_32F).var())
+
+
+def target_area_fraction(vertices_px: FloatArray, object_ids: npt.NDArray[np.int64],
+                         width: int, height: int) -> float:
+    """
+    Largest detected target's area as a fraction of the image.
+
+    :param vertices_px: (N, 2) image vertices (u, v), px; :param object_ids: (N,) their object.
+    """
+    best = 0.0
+    for obj in np.unique(object_ids):
+        pts = vertices_px[object_ids == obj].astype(np.float32)
+        if len(pts) >= 3:
+            best = max(best, float(cv2.contourArea(cv2.convexHull(pts))))
+    return best / float(width * height)
+
+
+def nominal_camera(width: int, height: int, hfov_deg: float = 65.0) -> CameraModel:
+    """A distortion-free camera of typical field of view, for when no camera_info is known."""
+    f_px = 0.5 * width / np.tan(np.deg2rad(0.5 * hfov_deg))
+    K = np.array([[f_px, 0.0, 0.5 * (width - 1)], [0.0, f_px, 0.5 * (height - 1)],
+                  [0.0, 0.0, 1.0]])
+    return CameraModel(width, height, K)

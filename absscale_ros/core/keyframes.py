@@ -135,34 +135,6 @@ class Decision:
     after_loss: bool = False
 
 
-def sharpness(grey: npt.NDArray[np.uint8]) -> float:
-    """Variance of the Laplacian of a grey image (higher is sharper)."""
-    return float(cv2.Laplacian(grey, cv2.CV_32F).var())
-
-
-def target_area_fraction(vertices_px: FloatArray, object_ids: npt.NDArray[np.int64],
-                         width: int, height: int) -> float:
-    """
-    Largest detected target's area as a fraction of the image.
-
-    :param vertices_px: (N, 2) image vertices (u, v), px; :param object_ids: (N,) their object.
-    """
-    best = 0.0
-    for obj in np.unique(object_ids):
-        pts = vertices_px[object_ids == obj].astype(np.float32)
-        if len(pts) >= 3:
-            best = max(best, float(cv2.contourArea(cv2.convexHull(pts))))
-    return best / float(width * height)
-
-
-def nominal_camera(width: int, height: int, hfov_deg: float = 65.0) -> CameraModel:
-    """A distortion-free camera of typical field of view, for when no camera_info is known."""
-    f_px = 0.5 * width / np.tan(np.deg2rad(0.5 * hfov_deg))
-    K = np.array([[f_px, 0.0, 0.5 * (width - 1)], [0.0, f_px, 0.5 * (height - 1)],
-                  [0.0, 0.0, 1.0]])
-    return CameraModel(width, height, K)
-
-
 class KeyframeSelector:
     """Stateful selector: call ``update`` once per frame, in stamp order."""
 
@@ -197,7 +169,7 @@ class KeyframeSelector:
     def _sharpness_ratio(self, grey: npt.NDArray[np.uint8]) -> float:
         # On a quarter-size image: sensor noise, added after the blur, would otherwise keep
         # the Laplacian variance of a smeared frame high.
-        score = sharpness(cv2.pyrDown(cv2.pyrDown(grey)))
+        score = keyframe_geometry.sharpness(cv2.pyrDown(cv2.pyrDown(grey)))
         median = float(np.median(self._scores)) if len(self._scores) >= 3 else 0.0
         ratio = score / median if median > 0.0 else 1.0
         self._scores.append(score)

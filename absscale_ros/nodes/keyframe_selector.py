@@ -15,7 +15,7 @@ import time
 from typing import Any
 
 from absscale_ros import conversions
-from absscale_ros.core import detect, errors, keyframes, pairing
+from absscale_ros.core import detect, errors, keyframe_geometry, keyframes, pairing
 from absscale_ros.nodes import common
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
@@ -85,11 +85,11 @@ class KeyframeSelectorNode(Node):
             h, w = image.shape[:2]
             camera = self._camera if self._camera is not None and \
                 (self._camera.width, self._camera.height) == (w, h) \
-                else keyframes.nominal_camera(w, h)
+                else keyframe_geometry.nominal_camera(w, h)
             area = 0.0
             if vertices is not None and vertices.width > 0:
                 pts = conversions.cloud_msg_to_array(vertices)
-                area = keyframes.target_area_fraction(
+                area = keyframe_geometry.target_area_fraction(
                     np.stack([pts['u'], pts['v']], axis=1), pts['object_id'], w, h)
             t0 = time.perf_counter()
             decision = self._selector.update(conversions.stamp_to_ns(frame.header.stamp), image,

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from absscale_ros import bagio, conversions, params
-from absscale_ros.core import keyframes
+from absscale_ros.core import keyframe_geometry, keyframes
 from absscale_ros.core.types import CameraModel
 
 IMAGE_TYPES = ('sensor_msgs/msg/CompressedImage', 'sensor_msgs/msg/Image')
@@ -66,7 +66,7 @@ def select(bag: str, cfg: keyframes.KeyframeConfig, areas: dict[int, float] | No
                      else conversions.image_msg_to_bgr(ros))
             h, w = image.shape[:2]
             cam = camera if camera is not None and (camera.width, camera.height) == (w, h) \
-                else keyframes.nominal_camera(w, h)
+                else keyframe_geometry.nominal_camera(w, h)
             stamp = conversions.stamp_to_ns(ros.header.stamp)
             t0, c0 = time.perf_counter(), time.process_time()
             decisions.append(selector.update(stamp, image, cam, (areas or {}).get(stamp, 0.0)))

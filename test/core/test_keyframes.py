@@ -101,9 +101,10 @@ def test_gric_rejects_pure_rotation_and_measures_a_baseline() -> None:
 def test_target_area_and_sharpness() -> None:
     square = np.array([[10, 10], [110, 10], [110, 110], [10, 110], [0, 0], [5, 0], [0, 5.0]])
     ids = np.array([0, 0, 0, 0, 1, 1, 1])
-    assert keyframes.target_area_fraction(square, ids, 200, 100) == pytest.approx(0.5)
+    assert keyframe_geometry.target_area_fraction(square, ids, 200, 100) == pytest.approx(0.5)
     img = (np.random.default_rng(0).random((100, 100)) * 255).astype(np.uint8)
-    assert keyframes.sharpness(cv2.GaussianBlur(img, (9, 9), 3)) < keyframes.sharpness(img)
+    blurred = cv2.GaussianBlur(img, (9, 9), 3)
+    assert keyframe_geometry.sharpness(blurred) < keyframe_geometry.sharpness(img)
 
 
 @pytest.mark.parametrize('bad', [{'min_baseline_ratio': 0.5}, {'track_width_px': 10},
