@@ -33,8 +33,9 @@ def thumbnail(image_bgr: npt.NDArray[np.uint8], truth: dict[str, object],
         label += '  rotation'
     if truth['motion_blur_px'] > 3.0:  # type: ignore[operator]
         label += f'  blur {truth["motion_blur_px"]:.0f} px'
-    cv2.putText(small, label, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 3, cv2.LINE_AA)
-    cv2.putText(small, label, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1,
+    (tw, th), _ = cv2.getTextSize(label, cv2.FONT_HERSHEY_SIMPLEX, 0.45, 1)
+    cv2.rectangle(small, (0, 0), (tw + 10, th + 10), (0, 0, 0), -1)
+    cv2.putText(small, label, (5, th + 4), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1,
                 cv2.LINE_AA)
     return small
 

@@ -34,7 +34,7 @@ def build(seed: int, variant: dict[str, object], rng: np.random.Generator) -> Sc
               'orbit_rad': orbit, 'far_m': rng.uniform(20.0, 25.0),
               'mid_m': rng.uniform(8.0, 11.0),
               'near_m': rng.uniform(3.0, 4.5), 'eye_height_m': rng.uniform(1.45, 1.7),
-              'max_speed_mps': 2.2, 'room_x0': -1e3, 'room_x1': 1e3, 'room_y0': -1e3,
+              'max_speed_mps': 3.0, 'room_x0': -1e3, 'room_x1': 1e3, 'room_y0': -1e3,
               'room_y1': 1e3}
     lo, hi = sorted([approach, approach + orbit])
     sector = (lo - np.deg2rad(35.0), hi + np.deg2rad(35.0))

@@ -17,6 +17,7 @@ TILE = 1024  # level-0 texels per tile side (a power of two: every mip level til
 LEVELS = 8  # 1024 .. 8 texels
 PAD = 2  # wrapped border texels around each tile so bilinear lookups never cross tiles
 COLUMNS = 5
+LOD_BIAS = 1.0  # 0.5 rounds to the nearest level; 1.0 takes the coarser one
 TEXTURE_SEED = 20240611
 F32 = npt.NDArray[np.float32]
 
@@ -141,7 +142,7 @@ def _bricks(rng: np.random.Generator) -> F32:
 
 def _concrete(rng: np.random.Generator) -> F32:
     _, _, joint = _grid_cells(512, 256, False)
-    g = 0.62 + 0.18 * _fractal(rng, 4, 256) + 0.08 * _noise(rng, 512)
+    g = 0.62 + 0.18 * _fractal(rng, 4, 256) + 0.03 * _noise(rng, 512)
     holes = _noise(rng, 128) > 0.93
     g = g - 0.25 * holes - 0.2 * (joint < 2)
     return _rgb(_cracks(rng, g.astype(np.float32), 12, 0.25), (0.95, 0.95, 0.92))
@@ -174,8 +175,8 @@ def _cracks(rng: np.random.Generator, g: F32, count: int, shade: float) -> F32:
 
 
 def _asphalt(rng: np.random.Generator) -> F32:
-    g = 0.40 + 0.16 * _fractal(rng, 4, 64) + 0.16 * (_noise(rng, 512) - 0.5)
-    g = g + 0.25 * (_noise(rng, 512) > 0.85)
+    g = 0.40 + 0.16 * _fractal(rng, 4, 64) + 0.06 * (_noise(rng, 512) - 0.5)
+    g = g + 0.07 * (_noise(rng, 256) > 0.85)
     patches = _noise(rng, 8) > 0.7  # repaired patches: darker, with sharp borders
     g = np.where(patches, g * 0.8, g).astype(np.float32)
     return _rgb(_cracks(rng, g, 25, 0.15), (1.0, 1.0, 1.0))
@@ -279,7 +280,8 @@ def sample(tex_ids: npt.NDArray[np.uint8], tx: F32, ty: F32, lod: F32,
     """
     at = atlas()
     tables = _slot_tables()
-    level = np.clip(lod + np.float32(0.5), 0, LEVELS - 1).astype(np.uint8)
+    # Level ceil(lod): a texel never smaller than a pixel, like a real lens + demosaicing.
+    level = np.clip(lod + np.float32(LOD_BIAS), 0, LEVELS - 1).astype(np.uint8)
     slot = tex_ids * np.uint8(LEVELS) + level  # < 256 while there are <= 32 textures
     scale = lookup(tables[0], slot)
     size = lookup(tables[1], slot)
