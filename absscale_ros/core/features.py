@@ -22,8 +22,8 @@ class FeatureConfig:
     ratio: float = 0.8  # Lowe's ratio test on the two nearest descriptors
     ransac_px: float = 1.5  # epipolar distance threshold of the fundamental-matrix check
     min_inliers: int = 20  # fewer verified matches than this is no match at all
-    max_width_px: int = 960  # detect on a copy downscaled to this width (0: full size)
-    flann_checks: int = 0  # > 0: approximate k-d tree matching checking this many leaves; 0: exact
+    max_width_px: int = 640  # detect on a copy downscaled to this width (0: full size)
+    flann_checks: int = 0  # > 0: approximate k-d tree matching, leaves checked; 0: brute force
 
     def __post_init__(self) -> None:
         if self.detector not in DETECTORS:
@@ -83,7 +83,7 @@ def detect(image_bgr: npt.NDArray[np.uint8], camera: CameraModel, cfg: FeatureCo
     """
     gray = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY)
     f = cfg.max_width_px / gray.shape[1] if 0 < cfg.max_width_px < gray.shape[1] else 1.0
-    # SIFT doubles its input first, so a 960 px copy still localises to about a full-size pixel.
+    # SIFT doubles its input first, so a 640 px copy still localises to about 1.5 full-size px.
     small = gray if f == 1.0 else cv2.resize(gray, None, fx=f, fy=f, interpolation=cv2.INTER_AREA)
     kps, desc = _detector(cfg).detectAndCompute(small, None)
     if desc is None or not kps:
@@ -96,13 +96,16 @@ def detect(image_bgr: npt.NDArray[np.uint8], camera: CameraModel, cfg: FeatureCo
     return Features(xy, undistort_px(camera, xy), desc[order], colours)
 
 
-def match(a: Features, b: Features, cfg: FeatureConfig) -> IndexArray:
+def match(a: Features, b: Features, cfg: FeatureConfig,
+          b_subset: IndexArray | None = None) -> IndexArray:
     """
     Ratio-test, mutually consistent matches (no geometric check yet).
 
+    :param b_subset: match only these keypoints of ``b`` (indices), or all when None.
     :returns: (M, 2) int64 index pairs into ``a`` and ``b``.
     """
-    if len(a.descriptors) < 2 or len(b.descriptors) < 2:
+    b_idx = np.arange(len(b.descriptors)) if b_subset is None else np.asarray(b_subset)
+    if len(a.descriptors) < 2 or len(b_idx) < 2:
         return np.zeros((0, 2), np.int64)
     if a.descriptors.dtype == np.float32 and cfg.flann_checks > 0:
         cv2.setRNGSeed(0)  # the k-d trees are randomised: the same input gives the same matches
@@ -112,9 +115,10 @@ def match(a: Features, b: Features, cfg: FeatureConfig) -> IndexArray:
         matcher = cv2.BFMatcher(cv2.NORM_L2 if a.descriptors.dtype == np.float32
                                 else cv2.NORM_HAMMING)
     pairs = []
-    for m, n in (p for p in matcher.knnMatch(a.descriptors, b.descriptors, k=2) if len(p) == 2):
+    knn = matcher.knnMatch(a.descriptors, b.descriptors[b_idx], k=2)
+    for m, n in (p for p in knn if len(p) == 2):
         if m.distance < cfg.ratio * n.distance:
-            pairs.append((m.queryIdx, m.trainIdx))
+            pairs.append((m.queryIdx, int(b_idx[m.trainIdx])))
     if not pairs:
         return np.zeros((0, 2), np.int64)
     out = np.array(pairs, np.int64)

@@ -37,6 +37,7 @@ class SfmConfig:
     pnp_px: float = 2.0  # PnP RANSAC reprojection threshold, px
     max_pending: int = 6  # keyframes kept while waiting for a well-conditioned initial pair
     max_failures: int = 2  # consecutive unregistrable keyframes (dropped) before a new segment
+    match_unclaimed_only: bool = False  # older neighbours see only keypoints still unmatched
 
     def __post_init__(self) -> None:
         if self.match_window < 1 or self.relocalise_window < self.match_window or \
@@ -47,7 +48,8 @@ class SfmConfig:
 @dataclass(frozen=True)
 class UpdateResult:
     """What one keyframe did: ``status`` is pending, initialised, registered, relocalised,
-    new_segment or rejected; ``message`` says why in words."""
+    new_segment or rejected; ``message`` says why in words. ``reprojection_rms_px`` is over the
+    newest ``match_window`` keyframes' observations (the whole segment after ``finish``)."""
 
     status: str
     message: str
@@ -118,15 +120,19 @@ class IncrementalSfm:
         for seg in self.segments:
             if seg.initialised:
                 seg.graph.batch(seg.map, self._progress)
-        return self._result('finished', f'{len(self.segments)} segment(s) adjusted')
+        return self._result('finished', f'{len(self.segments)} segment(s) adjusted', True)
 
-    def _result(self, status: str, msg: str) -> UpdateResult:
+    def _result(self, status: str, msg: str, full: bool = False) -> UpdateResult:
         m = self.current.map
+        # Per keyframe, the RMS over the newest keyframes (O(1) as the map grows); ``finish``
+        # gives the whole segment's.
+        recent = None if full else set(sorted(m.keyframes)[-self.cfg.match_window:])
         return UpdateResult(status, msg, len(m.keyframes), len(m.landmarks),
-                            m.reprojection_rms_px(self.K), len(self.segments))
+                            m.reprojection_rms_px(self.K, recent), len(self.segments))
 
-    def _verified(self, a: feat.Features, b: feat.Features) -> npt.NDArray[np.int64]:
-        pairs = feat.match(a, b, self.cfg.feature_cfg)
+    def _verified(self, a: feat.Features, b: feat.Features,
+                  b_subset: npt.NDArray[np.int64] | None = None) -> npt.NDArray[np.int64]:
+        pairs = feat.match(a, b, self.cfg.feature_cfg, b_subset)
         if len(pairs) == 0:
             return pairs
         ok = feat.verify(a.points_px[pairs[:, 0]], b.points_px[pairs[:, 1]],
@@ -173,7 +179,7 @@ class IncrementalSfm:
                 neighbours = neighbours[self.cfg.match_window:]
                 if not neighbours:
                     break
-            matches = {n.kf_id: self._verified(n.features, kf.features) for n in neighbours}
+            matches = self._match_neighbours(neighbours, kf)
             inliers = self._pnp(seg.map, kf, neighbours, matches)
             if inliers is not None:
                 self._failures = 0
@@ -195,6 +201,21 @@ class IncrementalSfm:
         self.current.pending.append(kf)
         return 'new_segment', (f'keyframe {kf.kf_id} could not be registered or relocalised: '
                                f'segment {len(self.segments) - 1} kept, new segment started')
+
+    def _match_neighbours(self, neighbours: list[sfm_map.MapKeyframe],
+                          kf: sfm_map.MapKeyframe) -> dict[int, npt.NDArray[np.int64]]:
+        """
+        Verified matches of ``kf`` with each neighbour, newest first; with
+        ``match_unclaimed_only`` a keypoint of ``kf`` matched by a newer neighbour is not looked
+        for again (half the matching cost, somewhat less accurate).
+        """
+        free = np.ones(len(kf.features.points_px), bool)
+        out = {}
+        for n in neighbours:
+            subset = np.flatnonzero(free) if self.cfg.match_unclaimed_only else None
+            out[n.kf_id] = pairs = self._verified(n.features, kf.features, subset)
+            free[pairs[:, 1]] = False
+        return out
 
     def _pnp(self, m: sfm_map.SfmMap, kf: sfm_map.MapKeyframe,
              neighbours: list[sfm_map.MapKeyframe],

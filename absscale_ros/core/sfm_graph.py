@@ -64,6 +64,7 @@ class SegmentGraph:
         self._factors: set[tuple[int, int]] = set()  # (kf_id, lm_id) already in iSAM2
         self._keys: set[int] = set()
         self._gauge_done = False
+        self._all_pending = True  # next _new_terms looks at every landmark, not just dirty ones
 
     def _factor(self, m: sfm_map.SfmMap, kf_id: int, lm_id: int) -> gtsam.NonlinearFactor:
         lm = m.landmarks[lm_id]
@@ -86,8 +87,15 @@ class SegmentGraph:
         if not self._gauge_done:
             self._gauge(m, graph)
             self._gauge_done = True
-        for lm_id, lm in m.landmarks.items():
+        # Only landmarks observed since the last call can bring new factors (O(new), not O(map)).
+        todo = list(m.landmarks) if self._all_pending else \
+            [i for i in m.dirty if i in m.landmarks]
+        self._all_pending = False
+        m.dirty.clear()
+        for lm_id in todo:
+            lm = m.landmarks[lm_id]
             if len(lm.obs_px) < 2:
+                m.dirty.add(lm_id)  # one observation: look again when the second comes
                 continue
             for kf_id in lm.obs_px:
                 if (kf_id, lm_id) in self._factors:
@@ -106,9 +114,13 @@ class SegmentGraph:
         for kf_id, kf in m.keyframes.items():
             if est.exists(pose_key(kf_id)):
                 kf.T_world_cam = est.atPose3(pose_key(kf_id)).matrix()
-        for lm_id, lm in m.landmarks.items():
-            if est.exists(point_key(lm_id)):
-                lm.point_world = np.asarray(est.atPoint3(point_key(lm_id)), np.float64)
+        # Every point at once (extractPoint3 lists them in key order, i.e. by landmark id).
+        keys = np.array(est.keys(), np.uint64)  # a symbol key is chr << 56 | index
+        ids = np.sort(keys[(keys >> np.uint64(56)) == ord('l')] & np.uint64(2**56 - 1))
+        for lm_id, p in zip(ids.tolist(), gtsam.utilities.extractPoint3(est)):
+            lm = m.landmarks.get(lm_id)
+            if lm is not None:
+                lm.point_world = p
 
     def update(self, m: sfm_map.SfmMap, fallback: bool = True) -> None:
         """

@@ -50,6 +50,7 @@ class SfmMap:
     keyframes: dict[int, MapKeyframe] = field(default_factory=dict)
     landmarks: dict[int, Landmark] = field(default_factory=dict)
     next_landmark_id: int = 0
+    dirty: set[int] = field(default_factory=set)  # landmarks observed since the graph looked
 
     def add_landmark(self, point_world: FloatArray, colour_rgb: tuple[int, int, int],
                      label: tuple[int, int] | None = None) -> int:
@@ -62,6 +63,7 @@ class SfmMap:
     def observe(self, lm_id: int, kf_id: int, point_px: FloatArray, kp_index: int = -1) -> None:
         """Record that keyframe ``kf_id`` sees landmark ``lm_id`` at ``point_px`` (undistorted)."""
         self.landmarks[lm_id].obs_px[kf_id] = np.asarray(point_px, np.float64)
+        self.dirty.add(lm_id)
         if kp_index >= 0:
             self.keyframes[kf_id].landmark_of[kp_index] = lm_id
 
@@ -75,14 +77,26 @@ class SfmMap:
             self.unobserve(lm_id, kf_id)
         del self.landmarks[lm_id]
 
-    def residuals_px(self, K: FloatArray) -> list[tuple[int, int, float]]:
-        """(landmark id, keyframe id, reprojection error px) of every observation."""
+    def residuals_px(self, K: FloatArray,
+                     kf_subset: set[int] | None = None) -> list[tuple[int, int, float]]:
+        """
+        (landmark id, keyframe id, reprojection error px) of every observation, or only of
+        those in the keyframes ``kf_subset``.
+        """
         lm_ids, kf_ids, uvs = [], [], []
-        for lm_id, lm in self.landmarks.items():
-            for kf_id, uv in lm.obs_px.items():
-                lm_ids.append(lm_id)
-                kf_ids.append(kf_id)
-                uvs.append(uv)
+        if kf_subset is None:
+            triples = ((i, k, uv) for i, lm in self.landmarks.items()
+                       for k, uv in lm.obs_px.items())
+        else:
+            lms = {int(i) for k in kf_subset for i in self.keyframes[k].landmark_of if i >= 0}
+            lms |= {int(i) for k in kf_subset if self.keyframes[k].vertices is not None
+                    for i in self.keyframes[k].vertices.landmark_of if i >= 0}
+            triples = ((i, k, uv) for i in lms if i in self.landmarks
+                       for k, uv in self.landmarks[i].obs_px.items() if k in kf_subset)
+        for lm_id, kf_id, uv in triples:
+            lm_ids.append(lm_id)
+            kf_ids.append(kf_id)
+            uvs.append(uv)
         if not uvs:
             return []
         pts = np.array([self.landmarks[i].point_world for i in lm_ids])
@@ -94,8 +108,9 @@ class SfmMap:
         err[~(p_cam[:, 2] > 0.0)] = np.inf
         return list(zip(lm_ids, kf_ids, err.tolist()))
 
-    def reprojection_rms_px(self, K: FloatArray) -> float:
-        errs = np.array([e for _, _, e in self.residuals_px(K)])
+    def reprojection_rms_px(self, K: FloatArray, kf_subset: set[int] | None = None) -> float:
+        """RMS reprojection error of all observations (or of those in ``kf_subset``), px."""
+        errs = np.array([e for _, _, e in self.residuals_px(K, kf_subset)])
         return float(np.sqrt(np.mean(errs**2))) if errs.size else float('nan')
 
     def cull(self, K: FloatArray, max_px: float) -> int:

@@ -105,7 +105,7 @@ def merge(m: sfm_map.SfmMap, keep: int, drop: int) -> None:
     kept = m.landmarks[keep]
     for kf_id, uv in m.landmarks[drop].obs_px.items():
         if kf_id not in kept.obs_px:
-            kept.obs_px[kf_id] = uv
+            m.observe(keep, kf_id, uv)  # marks it for the graph
     for kf in m.keyframes.values():
         if kf.vertices is not None:
             lof = kf.vertices.landmark_of

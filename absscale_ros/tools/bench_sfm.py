@@ -17,7 +17,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from absscale_ros import bagio, conversions
-from absscale_ros.core import align, sfm, sfm_vertices
+from absscale_ros.core import align, sfm, sfm_outputs, sfm_vertices
 from absscale_ros.core import vertex_matching as vm
 from absscale_ros.core.types import CameraModel
 
@@ -115,7 +115,7 @@ def _vertices(truth: dict[str, Any], gt: dict[str, Any], rng: np.random.Generato
 
 def _detected(image: np.ndarray, camera: CameraModel, gt: dict[str, Any]) -> vm.Vertices | None:
     """The vertex detector's vertices of one keyframe (target type from the ground truth)."""
-    from absscale_ros.core import detect, sfm_outputs
+    from absscale_ros.core import detect
     cube = any(t['kind'] == 'cube' for t in gt['targets'])
     result = detect.detect(image, detect.DetectConfig(target='cube' if cube else 'letter'),
                            camera.K)
@@ -146,7 +146,8 @@ def bench_one(camera: CameraModel, gt: dict[str, Any], frames: Iterator[Keyframe
     out.update(keyframes_in=len(times_s), sfm_time_s=float(np.sum(times_s)) + final_s,
                median_update_ms=1e3 * float(np.median(times_s)),
                max_update_ms=1e3 * float(np.max(times_s)),
-               median_update_cpu_ms=1e3 * float(np.median(cpu_s)), last_message=results[-2].message,
+               median_update_cpu_ms=1e3 * float(np.median(cpu_s)),
+               last_message=results[-2].message,
                statuses={s: sum(r.status == s for r in results) for s in
                          {r.status for r in results}})
     if args.colmap:
@@ -175,10 +176,14 @@ def score(engine: sfm.IncrementalSfm, poses: dict[int, np.ndarray],
     s, R, t = align.umeyama(T[:, :3, 3], gt_c)
     out['centre_rmse_m'] = align.rmse(align.apply(s, R, t, T[:, :3, 3]), gt_c)
     out['centre_rmse_pct'] = 100.0 * out['centre_rmse_m'] / max(length_m, 1e-12)
-    errs = []
+    errs, usable = [], []
     for lm_id, lm in m.landmarks.items():
         if lm.label is None:
             continue
+        centres = np.array([m.keyframes[k].T_world_cam[:3, 3] for k in lm.obs_px])
+        # What the scale node counts by default: >= 3 keyframes, >= 3 degrees of parallax.
+        usable.append(len(lm.obs_px) >= 3 and
+                      sfm_outputs.widest_angle_deg(lm.point_world, centres) >= 3.0)
         p = align.apply(s, R, t, lm.point_world[None])[0]
         kf = next(iter(lm.obs_px))
         if truth[kf] is None:  # detected vertices: the nearest true vertex
@@ -193,6 +198,10 @@ def score(engine: sfm.IncrementalSfm, poses: dict[int, np.ndarray],
     if errs:
         out['vertex_err_max_pct'] = 100.0 * max(errs) / extent_m
         out['vertex_err_median_pct'] = 100.0 * float(np.median(errs)) / extent_m
+    good = [e for e, u in zip(errs, usable) if u]
+    out['vertices_usable'] = len(good)
+    if good:
+        out['vertex_err_usable_max_pct'] = 100.0 * max(good) / extent_m
     return out
 
 
@@ -202,7 +211,8 @@ def _line(name: str, r: dict[str, Any]) -> str:
     return (f'{name:<22} kf {r["registered"]:>3}/{r["keyframes_in"]:<3} seg {r["segments"]} '
             f'rmse {f("centre_rmse_pct", ".3f")}% reproj {f("reprojection_rms_px", ".2f")}px '
             f'vtx {r.get("vertices", 0)} err med/max {f("vertex_err_median_pct", ".3f")}/'
-            f'{f("vertex_err_max_pct", ".3f")}% upd med/max {f("median_update_ms", ".0f")}/'
+            f'{f("vertex_err_max_pct", ".3f")}% usable {r.get("vertices_usable", 0)} max '
+            f'{f("vertex_err_usable_max_pct", ".3f")}% upd med/max {f("median_update_ms", ".0f")}/'
             f'{f("max_update_ms", ".0f")}ms cpu med {f("median_update_cpu_ms", ".0f")}ms')
 
 
