@@ -136,7 +136,8 @@ def baseline_ratio(R: FloatArray, t: FloatArray, xy0: FloatArray, xy1: FloatArra
 
 
 def analyse(xy0: FloatArray, xy1: FloatArray, sigma_norm: float, min_inliers: int,
-            min_parallax: float = 0.0, min_inlier_ratio: float = 0.5) -> Motion:
+            min_parallax: float = 0.0, min_inlier_ratio: float = 0.5,
+            rot_sq: FloatArray | None = None) -> Motion:
     """
     Fit E and a pure rotation to the pairs, pick by GRIC, and measure the baseline ratio.
 
@@ -148,6 +149,7 @@ def analyse(xy0: FloatArray, xy1: FloatArray, sigma_norm: float, min_inliers: in
         baseline, or KLT drift over a long rotation that GRIC alone may take for one.
     :param min_inlier_ratio: a smaller fraction of E inliers is degenerate (no consistent
         motion: tracks gone wrong).
+    :param rot_sq: (N,) residuals of ``rotation_fit(xy0, xy1)`` if the caller has them.
 
     Both models are scored on every pair (GRIC caps the outliers' cost), not on the E
     inliers only: that would favour E by construction.
@@ -168,7 +170,8 @@ def analyse(xy0: FloatArray, xy1: FloatArray, sigma_norm: float, min_inliers: in
     a, b = xy0[inl], xy1[inl]
     sigma_sq = sigma_norm * sigma_norm
     g_e = gric(sampson_sq(E, xy0, xy1), sigma_sq, 3, 5)
-    _, rot_sq = rotation_fit(xy0, xy1)
+    if rot_sq is None:
+        _, rot_sq = rotation_fit(xy0, xy1)
     g_rot = gric(rot_sq, sigma_sq, 2, 3)
     parallax = float(np.sqrt(np.median(rot_sq[inl])))
     if g_rot <= g_e or parallax < min_parallax:

@@ -217,7 +217,8 @@ class KeyframeSelector:
         if np.sqrt(np.median(rot_sq)) * f_px < self.cfg.min_parallax_px:
             return None
         return keyframe_geometry.analyse(xy0, xy1, self.cfg.sigma_px / f_px,
-                                         self.cfg.min_inliers, self.cfg.min_parallax_px / f_px)
+                                         self.cfg.min_inliers, self.cfg.min_parallax_px / f_px,
+                                         rot_sq=rot_sq)
 
     def update(self, stamp_ns: int, image_bgr: npt.NDArray[np.uint8], camera: CameraModel,
                target_area: float = 0.0) -> Decision:
