@@ -18,7 +18,7 @@ import open3d as o3d
 
 from absscale_ros.core.types import CameraModel
 from absscale_ros.sim import camera as simcam
-from absscale_ros.sim import textures
+from absscale_ros.sim import rays, textures
 from absscale_ros.sim.scene import Scene, SKY
 
 F32 = npt.NDArray[np.float32]
@@ -46,20 +46,6 @@ class Frame:
     grid_points_world_m: F32
 
 
-class _Rays:
-    """Fixed per camera: rays through a set of pixel positions, structure of arrays."""
-
-    def __init__(self, camera: CameraModel, pixels_px: FloatArray) -> None:
-        xy = simcam.undistort_pixels(camera, pixels_px)
-        self.x = xy[:, 0].astype(np.float32)  # undistorted normalised coordinates
-        self.y = xy[:, 1].astype(np.float32)
-        norm = np.sqrt(xy[:, 0] ** 2 + xy[:, 1] ** 2 + 1.0)
-        self.dirs = (np.concatenate([xy, np.ones((len(xy), 1))], axis=1)
-                     / norm[:, None]).astype(np.float32)  # (N, 3) unit, camera frame
-        self.dz = (1.0 / norm).astype(np.float32)  # z of the unit direction
-        self.norm_cubed = (norm ** 3).astype(np.float32)
-
-
 class Renderer:
     """Renders one scene through one camera model; build once, call ``render`` per pose."""
 
@@ -70,10 +56,10 @@ class Renderer:
         self._rc.add_triangles(o3d.core.Tensor(scene.vertices_m),
                                o3d.core.Tensor(scene.triangles))
         w, h = camera.width, camera.height
-        self._pix = _Rays(camera, simcam.pixel_grid(w, h))
+        self._pix = rays.Rays(camera, simcam.pixel_grid(w, h))
         self._grid_shape = (h // BLOCK + 1, w // BLOCK + 1)
-        self._grid = _Rays(camera, simcam.pixel_grid(w, h, BLOCK))
-        self._subs = [_Rays(camera, simcam.pixel_grid(w, h, 1, off)) for off in SUBSAMPLES]
+        self._grid = rays.Rays(camera, simcam.pixel_grid(w, h, BLOCK))
+        self._subs = [rays.Rays(camera, simcam.pixel_grid(w, h, 1, off)) for off in SUBSAMPLES]
         mats = scene.materials
         mat = scene.surface_material
         n = len(mat) + 1
@@ -100,10 +86,10 @@ class Renderer:
         :returns: (N,) distance along the ray, m (inf for sky); (N,) surface ids.
         """
         R = T_world_cam[:3, :3].astype(np.float32)
-        rays = np.empty((len(dirs_cam), 6), np.float32)
-        rays[:, :3] = T_world_cam[:3, 3].astype(np.float32)
-        rays[:, 3:] = rotate(dirs_cam, R)
-        hit = self._rc.cast_rays(o3d.core.Tensor(rays))
+        origin_dir = np.empty((len(dirs_cam), 6), np.float32)
+        origin_dir[:, :3] = T_world_cam[:3, 3].astype(np.float32)
+        origin_dir[:, 3:] = rays.rotate(dirs_cam, R)
+        hit = self._rc.cast_rays(o3d.core.Tensor(origin_dir))
         t = hit['t_hit'].numpy()
         prim = hit['primitive_ids'].numpy()
         missed = ~np.isfinite(t)
@@ -252,7 +238,7 @@ class Renderer:
         gh, gw = self._grid_shape
         far = np.where(np.isfinite(grid_z), grid_z, np.float32(1e5))
         pts_cam = np.stack([self._grid.x * far, self._grid.y * far, far], axis=1)
-        pts = rotate(pts_cam, T_world_cam[:3, :3]) + T_world_cam[:3, 3]
+        pts = rays.rotate(pts_cam, T_world_cam[:3, :3]) + T_world_cam[:3, 3]
         return pts.astype(np.float32).reshape(gh, gw, 3)
 
     def _shade(self, T_world_cam: FloatArray, tab: F32, row: npt.NDArray[np.uint8], z: F32,
@@ -278,7 +264,7 @@ class Renderer:
         if dirs is not None and self.scene.outdoor:
             sky = np.flatnonzero(row == 0)
             if sky.size:
-                colour[sky] = self._sky(dot(dirs[sky], T_world_cam[2, :3]))
+                colour[sky] = self._sky(rays.dot(dirs[sky], T_world_cam[2, :3]))
         return colour
 
     def _fill_sky(self, colour: F32, row: npt.NDArray[np.uint8], T_world_cam: FloatArray) -> None:
@@ -287,7 +273,7 @@ class Renderer:
         if not sky.any():
             return
         h, w = self.camera.height, self.camera.width
-        up = dot(self._grid.dirs, T_world_cam[2, :3])
+        up = rays.dot(self._grid.dirs, T_world_cam[2, :3])
         grid = self._sky(up).reshape(*self._grid_shape, 3)[:-1, :-1]
         full = cv2.resize(grid, (w, h), interpolation=cv2.INTER_LINEAR)
         # The shader left the sky black (row 0 has a zero colour factor): add it there.
@@ -300,19 +286,6 @@ class Renderer:
         horizon = np.array([0.85, 0.88, 0.92], np.float32)
         zenith = np.array([0.45, 0.62, 0.88], np.float32)
         return (255.0 * (horizon + (zenith - horizon) * up)).astype(np.float32)
-
-
-def rotate(vectors: F32, R: FloatArray) -> F32:
-    """``vectors @ R.T`` for (N, 3) float32 arrays, by OpenCV (BLAS threads spin and starve)."""
-    out = cv2.transform(np.ascontiguousarray(vectors, np.float32).reshape(-1, 1, 3),
-                        np.asarray(R, np.float32))
-    return out.reshape(-1, 3)
-
-
-def dot(vectors: F32, v: FloatArray) -> F32:
-    """``vectors @ v`` for (N, 3) arrays without BLAS."""
-    vf = np.asarray(v, np.float32)
-    return vectors[:, 0] * vf[0] + vectors[:, 1] * vf[1] + vectors[:, 2] * vf[2]
 
 
 def _lut(values: object) -> F32:
