@@ -5,6 +5,7 @@ The YAML is the one camera_calibration writes and camera_info_manager reads (ima
 camera_matrix, distortion_model, ...), so a file from either tool works here and back.
 """
 from dataclasses import dataclass
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -100,10 +101,24 @@ def model_from_yaml(text: str, source: str = 'calibration YAML') -> CameraModel:
         doc = yaml.safe_load(text)
         K = np.array(doc['camera_matrix']['data'], float).reshape(3, 3)
         dist = np.array(doc.get('distortion_coefficients', {}).get('data', []), float)
-        model = CameraModel(int(doc['image_width']), int(doc['image_height']), K, dist,
-                            doc.get('distortion_model', 'plumb_bob') if dist.size else 'none')
+        name = str(doc.get('distortion_model') or 'plumb_bob') if np.any(dist) else 'none'
+        model = CameraModel(int(doc['image_width']), int(doc['image_height']), K, dist, name)
     except (yaml.YAMLError, KeyError, TypeError, ValueError) as err:
         raise AbsScaleError(f'{source}: not a ROS calibration file ({err})') from err
     if not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
         raise AbsScaleError(f'{source}: camera_matrix has no valid focal length')
     return model
+
+
+def load_calibration_yaml(path: str | Path) -> CameraModel:
+    """
+    Read a ROS calibration file (what camera_calibration and ``absscale calibrate`` write).
+
+    :raises AbsScaleError: when the file is missing or not such a calibration.
+    """
+    try:
+        text = Path(path).read_text()
+    except OSError as err:
+        raise AbsScaleError(f'{path}: cannot read the calibration file ({err.strerror})') \
+            from err
+    return model_from_yaml(text, str(path))

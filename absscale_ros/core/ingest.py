@@ -7,12 +7,10 @@ camera calibration YAML (``camera_calibration`` / ``camera_info_manager`` format
 the frames a live stream lost from the gaps between stamps.
 """
 from dataclasses import dataclass
-from pathlib import Path
 
 import cv2
 import numpy as np
 import numpy.typing as npt
-import yaml
 
 from absscale_ros.core import errors
 from absscale_ros.core.types import CameraModel
@@ -114,26 +112,6 @@ def _undistort_maps(cam: CameraModel, width: int, height: int,
         m1, m2 = cv2.initUndistortRectifyMap(cam.K, cam.dist, np.eye(3), out.K, (width, height),
                                              cv2.CV_16SC2)
     return out, (m1, m2)
-
-
-def load_calibration_yaml(path: str | Path) -> CameraModel:
-    """
-    Read a ROS camera calibration file (``image_width``, ``camera_matrix``...).
-
-    :raises errors.AbsScaleError: when the file is missing or not such a calibration.
-    """
-    path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text())
-        K = np.array(data['camera_matrix']['data'], dtype=np.float64).reshape(3, 3)
-        dist = np.array(data.get('distortion_coefficients', {}).get('data', []) or [],
-                        dtype=np.float64)
-        model = str(data.get('distortion_model', 'plumb_bob') or 'plumb_bob')
-        if not np.any(dist):
-            model = 'none' if not dist.size else model
-        return CameraModel(int(data['image_width']), int(data['image_height']), K, dist, model)
-    except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError) as err:
-        raise errors.AbsScaleError(f'{path}: not a usable camera calibration: {err}') from err
 
 
 class GapCounter:

@@ -15,7 +15,7 @@ import time
 from typing import Any
 
 from absscale_ros import conversions
-from absscale_ros.core import errors, ingest, pairing
+from absscale_ros.core import calibration, errors, ingest, pairing
 from absscale_ros.nodes import common
 from diagnostic_msgs.msg import DiagnosticArray
 import rclpy
@@ -35,7 +35,7 @@ class FrameIngestNode(Node):
             ('calibration_file', ''), ('info_wait_s', 1.0), ('hold_frames', 5)])}
         self._prep = ingest.FramePreparer(ingest.IngestConfig(
             p['max_width_px'], p['undistort'], p['undistort_alpha']))
-        self._calib = (ingest.load_calibration_yaml(p['calibration_file'])
+        self._calib = (calibration.load_calibration_yaml(p['calibration_file'])
                        if p['calibration_file'] else None)
         self._held: pairing.HoldQueue[tuple[Any, Any]] = pairing.HoldQueue(
             p['hold_frames'], p['info_wait_s'])

@@ -54,7 +54,7 @@ class VideoSourceNode(Node):
             self.get_logger().warning('no calibration_file: publishing camera_info with a '
                                       'guessed focal length; metric results need a calibration')
             return None
-        return calibration.model_from_yaml(Path(path).read_text(), path)
+        return calibration.load_calibration_yaml(path)
 
     def _guess_model(self, width: int, height: int) -> CameraModel:
         f = 0.8 * width  # about 64 degrees horizontal field of view

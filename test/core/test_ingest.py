@@ -1,7 +1,7 @@
 """Frame preparation: resize and undistortion keep the geometry; calibration files; gaps."""
 from pathlib import Path
 
-from absscale_ros.core import errors, ingest
+from absscale_ros.core import calibration, errors, ingest
 from absscale_ros.core.types import CameraModel
 import cv2
 import numpy as np
@@ -67,13 +67,13 @@ def test_calibration_yaml(tmp_path: Path) -> None:
         f'camera_matrix: {{rows: 3, cols: 3, data: {CAM.K.ravel().tolist()}}}\n'
         'distortion_model: plumb_bob\n'
         f'distortion_coefficients: {{rows: 1, cols: 5, data: {CAM.dist.tolist()}}}\n')
-    cam = ingest.load_calibration_yaml(path)
+    cam = calibration.load_calibration_yaml(path)
     assert (cam.width, cam.height, cam.distortion_model) == (1280, 720, 'plumb_bob')
     np.testing.assert_array_equal(cam.K, CAM.K)
     np.testing.assert_array_equal(cam.dist, CAM.dist)
     (tmp_path / 'bad.yaml').write_text('image_width: 3\n')
     with pytest.raises(errors.AbsScaleError):
-        ingest.load_calibration_yaml(tmp_path / 'bad.yaml')
+        calibration.load_calibration_yaml(tmp_path / 'bad.yaml')
 
 
 def test_gap_counter() -> None:
