@@ -24,14 +24,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def evaluate_bag(bag: str, config: str | None) -> dict[str, Any]:
     """Run the graph on ``bag`` and measure it against its gt.json."""
-    from absscale_ros import conversions, graph
-    from absscale_ros.core import evaluation
+    from absscale_ros import graph
     from absscale_ros.sim import groundtruth
     from rclpy.serialization import deserialize_message
     gt = groundtruth.load(f'{bag}.gt.json')
-    scene = str(gt['scene']['name'])  # type: ignore[index]
-    report = graph.run_graph(bag, config or scene, graph.RunOptions(mode='step'))
+    report = graph.run_graph(bag, config or str(gt['scene']['name']),  # type: ignore[index]
+                             graph.RunOptions(mode='step'))
     msgs = {t: deserialize_message(d, c) for t, (c, d) in report.pop('_latest').items()}
+    return measure(bag, report, msgs, gt)
+
+
+def measure(bag: str, report: dict[str, Any], msgs: dict[str, Any], gt: dict[str, Any],
+            lengths: bool = True) -> dict[str, Any]:
+    """
+    Scale error and (with ``lengths``) Table 3 length errors of one finished run.
+
+    :param msgs: the run's last messages by topic (deserialized).
+    """
+    from absscale_ros import conversions
+    from absscale_ros.core import evaluation
+    from absscale_ros.sim import groundtruth
+    scene = str(gt['scene']['name'])
     scale_report = report['nodes'].get('scale', {})
     result: dict[str, Any] = {'bag': bag, 'scene': scene, 'observable':
                               bool(scale_report.get('observable')),
@@ -48,7 +61,7 @@ def evaluate_bag(bag: str, config: str | None) -> dict[str, Any]:
     result.update(factor=factor, sigma=sigma, true_factor=truth_factor,
                   scale_error_mm_per_m=1000.0 * (factor / truth_factor - 1.0),
                   claimed_sigma_mm_per_m=1000.0 * sigma / factor)
-    if '/scaled_cloud' in msgs and '/absscale/scaled_path' in msgs:
+    if lengths and '/scaled_cloud' in msgs and '/absscale/scaled_path' in msgs:
         cloud = conversions.cloud_msg_to_array(msgs['/scaled_cloud'], skip_nans=True)
         pts = np.stack([cloud[a] for a in 'xyz'], axis=1).astype(np.float64)
         metric_poses, _ = conversions.path_msg_to_poses(msgs['/absscale/scaled_path'])

@@ -25,7 +25,9 @@ def run(args: argparse.Namespace) -> int:
     print(f'absscale demo: replaying {bag.name} through the graph (config {args.scene})')
     report = graph.run_graph(str(bag), args.scene, graph.RunOptions(mode='step'))
     from absscale_ros import outputs
-    report['outputs'] = outputs.write_run_outputs(report.pop('_latest'), out, report)
+    latest = report.pop('_latest')
+    report['outputs'] = outputs.write_run_outputs(latest, out, report)
+    truth = _against_truth(bag, report, latest)
     (out / 'report.json').write_text(json.dumps(report, indent=2, default=str) + '\n')
     replay = report['replay']
     print(f'  frames replayed : {replay["steps"]} ({replay["published"]} messages) in '
@@ -33,8 +35,30 @@ def run(args: argparse.Namespace) -> int:
     print(f'  nodes running   : {", ".join(report["nodes"]) or "bag_replay only"}')
     for topic, count in report['messages_per_topic'].items():
         print(f'  {topic:<32}: {count} messages')
-    scale = report.get('scale')
-    if scale is None:
-        print('  metric scale    : not established (the scale node is not built yet)')
-    print(f'  report          : {out / "report.json"}')
-    return 0
+    scale = report['nodes'].get('scale', {})
+    if not scale.get('observable'):
+        print(f'  metric scale    : NOT established: {scale.get("reason", "no scale node")}')
+    else:
+        print(f'  metric scale    : {scale["factor"]:.6g} m per SfM unit +/- '
+              f'{1000 * scale["sigma"] / scale["factor"]:.2f} mm/m (1 sigma), from '
+              f'{scale["edges"]} vertex-pair lengths')
+    if truth.get('scale_error_mm_per_m') is not None:
+        print(f'  error vs truth  : {truth["scale_error_mm_per_m"]:+.2f} mm/m (simulator '
+              'ground truth: the scale that best aligns the trajectory with the true one)')
+    for name in ('scaled_cloud.ply', 'trajectory.tum', 'run.png', 'report.json'):
+        if (out / name).exists():
+            print(f'  output          : {out / name}')
+    return 0  # the demo ran; whether a scale was established is printed above
+
+
+def _against_truth(bag: Path, report: dict, latest: dict) -> dict:
+    """Scale error against the sample's gt.json (skipped when there is none)."""
+    gt_path = Path(f'{bag}.gt.json')
+    if not gt_path.exists():
+        return {}
+    from absscale_ros.sim import groundtruth
+    from absscale_ros.tools import bench_scale
+    from rclpy.serialization import deserialize_message
+    msgs = {t: deserialize_message(d, c) for t, (c, d) in latest.items()}
+    return bench_scale.measure(str(bag), report, msgs, groundtruth.load(gt_path),
+                               lengths=False)

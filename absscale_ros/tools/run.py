@@ -58,4 +58,12 @@ def run(args: argparse.Namespace) -> int:
     print(f'replayed {report["replay"]["published"]} messages '
           f'({report["replay"]["steps"]} frames) in {report["wall_time_s"]:.1f} s; '
           f'report: {out / "report.json"}')
+    scale = report['nodes'].get('scale')
+    if scale is not None and not scale.get('observable'):
+        print(f'absscale run: no metric scale established: {scale.get("reason")}',
+              file=sys.stderr)
+        return 1
+    if scale is not None:
+        print(f'metric scale: {scale["factor"]:.6g} m per SfM unit +/- '
+              f'{1000 * scale["sigma"] / scale["factor"]:.2f} mm/m')
     return 0
