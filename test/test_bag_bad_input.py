@@ -1,4 +1,4 @@
-"""Broken bags give one clear line naming the file and the problem, a non-zero exit, no traceback."""
+"""Broken bags: one clear line naming the file and the problem, non-zero exit, no traceback."""
 import os
 from pathlib import Path
 import subprocess

@@ -34,7 +34,8 @@ def _write_video(path: Path, frames: int = 24) -> None:
     for i in range(frames):
         rvec = rng.uniform(-0.5, 0.5, 3)
         R, _ = cv2.Rodrigues(rvec)
-        t = np.array([-0.1, -0.07, 0.0]) @ R.T * -1 + np.array([-0.1, -0.07, 0.45 + 0.1 * i / frames])
+        centre = np.array([0.1, 0.0625, 0.0])  # middle of the inner corners, board frame
+        t = -R @ centre + np.array([0.0, 0.0, 0.45 + 0.1 * i / frames])
         H = K_TRUE @ np.column_stack([R[:, 0], R[:, 1], t]) @ A
         img = cv2.warpPerspective(board, H, SIZE, borderValue=128, flags=cv2.INTER_LINEAR)
         writer.write(cv2.cvtColor(img, cv2.COLOR_GRAY2BGR))

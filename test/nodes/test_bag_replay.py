@@ -63,7 +63,8 @@ def test_topic_filter_remap_and_offset(context, tmp_path: Path) -> None:
     sink2 = StepSinkNode('other_sink', context=context, parameter_overrides=[
         Parameter('topic', value='/other'), Parameter('keep_bytes', value=True)])
     sink, replay, executor = _graph(context, bag, mode='fast', topics=IMAGE_TOPIC,
-                                    remap=f'{IMAGE_TOPIC}:=/other', start_offset_s=0.49)  # frames 15..29
+                                    remap=f'{IMAGE_TOPIC}:=/other',
+                                    start_offset_s=0.49)  # frames 15..29
     assert replay.topic_types() == {'/other': 'sensor_msgs/msg/CompressedImage'}
     executor.add_node(sink2)
     assert spin_until(executor, lambda: replay.finished and len(sink2.received) == 15)
