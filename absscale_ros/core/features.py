@@ -18,7 +18,7 @@ class FeatureConfig:
 
     detector: str = 'sift'
     max_features: int = 2000
-    sift_contrast: float = 0.01  # SIFT contrast threshold; OpenCV's 0.04 starves smooth walls
+    sift_contrast: float = 0.004  # SIFT contrast threshold; OpenCV's 0.04 starves smooth walls
     ratio: float = 0.8  # Lowe's ratio test on the two nearest descriptors
     ransac_px: float = 1.5  # epipolar distance threshold of the fundamental-matrix check
     min_inliers: int = 20  # fewer verified matches than this is no match at all

