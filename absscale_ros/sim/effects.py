@@ -15,7 +15,8 @@ from absscale_ros.sim.render import BLOCK, F32, FloatArray
 
 MAX_BLUR_SAMPLES = 4  # per level: at most 4 + 4 remaps for 16 samples
 BLUR_SPACING_PX = 2.5  # sub-exposure samples at most this far apart along a streak
-SHORT_STREAK_PX = 4.0  # shorter streaks: one line-kernel filter along the dominant direction
+SHORT_STREAK_PX = 8.0  # shorter streaks: line-kernel filters, one per image tile
+BLUR_TILES = 3  # tiles per image side for short streaks (the streak field varies slowly)
 NOISE_MARGIN = 64  # noise bank border: each frame reads the bank at a random offset
 
 
@@ -76,7 +77,7 @@ class CameraEffects:
         if length < 1.0:  # sub-pixel streaks do not show
             return colour, length
         if length < SHORT_STREAK_PX:
-            return _line_blur(colour, streak[finite]), length
+            return _tiled_line_blur(colour, streak, finite), length
         n = int(min(MAX_BLUR_SAMPLES ** 2, np.ceil(length / BLUR_SPACING_PX) + 1))
         h, w = self._camera.height, self._camera.width
         flows = [cv2.resize(np.nan_to_num(e[:-1, :-1]), (w, h), interpolation=cv2.INTER_LINEAR)
@@ -146,16 +147,45 @@ class CameraEffects:
         return cv2.add(img, noise, dtype=cv2.CV_8U)
 
 
+def _tiled_line_blur(colour: F32, streak: F32, finite: npt.NDArray[np.bool_]) -> F32:
+    """
+    Short streaks: per tile of the image, one line kernel along the tile's streaks.
+
+    :param streak: (Hg, Wg, 2) streak vectors at the grid points, px; ``finite`` marks valid.
+    """
+    h, w = colour.shape[:2]
+    gh, gw = streak.shape[:2]
+    out = np.empty_like(colour)
+    pad = int(SHORT_STREAK_PX) // 2 + 2
+    for i in range(BLUR_TILES):
+        for j in range(BLUR_TILES):
+            y0, y1 = h * i // BLUR_TILES, h * (i + 1) // BLUR_TILES
+            x0, x1 = w * j // BLUR_TILES, w * (j + 1) // BLUR_TILES
+            gy, gx = slice(gh * i // BLUR_TILES, gh * (i + 1) // BLUR_TILES + 1), \
+                slice(gw * j // BLUR_TILES, gw * (j + 1) // BLUR_TILES + 1)
+            ok = finite[gy, gx]
+            if not ok.any():
+                out[y0:y1, x0:x1] = colour[y0:y1, x0:x1]
+                continue
+            py0, py1, px0, px1 = max(y0 - pad, 0), min(y1 + pad, h), max(x0 - pad, 0), \
+                min(x1 + pad, w)
+            blurred = _line_blur(colour[py0:py1, px0:px1], streak[gy, gx][ok])
+            out[y0:y1, x0:x1] = blurred[y0 - py0:y1 - py0, x0 - px0:x1 - px0]
+    return out
+
+
 def _line_blur(colour: F32, streaks_px: F32) -> F32:
     """
-    Blur by one line kernel: for streaks of a few px the direction hardly varies over the image.
+    Blur by one line kernel along the principal direction of ``streaks_px``.
 
-    :param streaks_px: (N, 2) streak vectors at the grid points (start to end of exposure).
+    :param streaks_px: (N, 2) streak vectors (start to end of exposure), px.
     """
     # Principal direction and RMS length of the streaks (signs do not matter for a line).
     tensor = streaks_px.T.astype(np.float64) @ streaks_px / len(streaks_px)
     values, vectors = np.linalg.eigh(tensor)
-    length, direction = float(np.sqrt(values[1])), vectors[:, 1]
+    length, direction = float(np.sqrt(max(values[1], 0.0))), vectors[:, 1]
+    if length < 0.5:
+        return colour
     half = int(np.ceil(length / 2.0)) + 1
     kernel = np.zeros((2 * half + 1, 2 * half + 1), np.float32)
     for s in np.linspace(-0.5, 0.5, 17):  # splat the segment bilinearly

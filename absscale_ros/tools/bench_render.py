@@ -22,7 +22,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--scene', nargs='+', default=['indoor_paper', 'outdoor_cube'],
                         choices=('indoor_paper', 'outdoor_cube'))
     parser.add_argument('--seed', type=int, default=0)
-    parser.add_argument('--frames', type=int, default=150)
+    parser.add_argument('--frames', type=int, default=300,
+                        help='frames per scene (300 = the default 10 s video)')
     parser.add_argument('--size', default='1280x720')
     parser.add_argument('--quality', type=int, default=90)
     parser.add_argument('--min-fps', type=float, default=0.0,
