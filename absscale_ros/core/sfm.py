@@ -33,7 +33,7 @@ class SfmConfig:
     vertex_cfg: vm.VertexMatchConfig = field(default_factory=vm.VertexMatchConfig)
     match_window: int = 3  # match each new keyframe against this many previous ones
     relocalise_window: int = 30  # keyframes tried when the recent ones do not register it
-    min_pnp_inliers: int = 30
+    min_pnp_inliers: int = 50  # fewer: a weak link that lets the scale jump (start a segment)
     pnp_px: float = 2.0  # PnP RANSAC reprojection threshold, px
     max_pending: int = 6  # keyframes kept while waiting for a well-conditioned initial pair
     max_failures: int = 2  # consecutive unregistrable keyframes (dropped) before a new segment

@@ -125,7 +125,7 @@ class SfmNode(Node):
         return [self._pubs[name].topic_name for name in msgs]
 
     def _diagnose(self, stamp_ns: int, vertices: int) -> None:
-        r = self.report()
+        r = self.report(full_rms=False)
         level, text = 'ok', self._last.message if self._last else 'no keyframe yet'
         if r['keyframes_registered'] == 0:
             level, text = 'warn', f'no reconstruction yet (camera only rotating?): {text}'
@@ -136,8 +136,13 @@ class SfmNode(Node):
                                                {**r, 'target_vertices': vertices})
         self._diag_pub.publish(conversions.diagnostic_array([status], stamp_ns))
 
-    def report(self) -> dict[str, Any]:
-        """Keyframes, segments, reprojection and update times, for report.json."""
+    def report(self, full_rms: bool = True) -> dict[str, Any]:
+        """
+        Keyframes, segments, reprojection and update times, for report.json.
+
+        :param full_rms: RMS over the whole published segment (else over the newest keyframes,
+            as the last update measured it: cheap enough for every keyframe).
+        """
         times = np.array(self._times_ms or [np.nan])
         out: dict[str, Any] = {'keyframes_in': len(self._times_ms), 'keyframes_registered': 0,
                                'segments': 0, 'landmarks': 0, 'target_vertices': 0,
@@ -150,7 +155,8 @@ class SfmNode(Node):
             out.update(keyframes_registered=len(m.keyframes), landmarks=len(m.landmarks),
                        segments=len(self.engine.segments),
                        target_vertices=sum(lm.label is not None for lm in m.landmarks.values()),
-                       reprojection_rms_px=m.reprojection_rms_px(self.engine.K),
+                       reprojection_rms_px=m.reprojection_rms_px(self.engine.K) if full_rms
+                       else self._last.reprojection_rms_px if self._last else float('nan'),
                        keyframes_registered_all=sum(len(s.map.keyframes)
                                                     for s in self.engine.segments))
         return out
