@@ -105,8 +105,9 @@ def detection_to_dict(det: targets.TargetDetection) -> dict[str, object]:
         'target_type': det.target_type,
         'name': det.name,
         'score': round(det.score, 4),
-        'vertices': [{'id': int(i), 'u_px': round(float(u), 3), 'v_px': round(float(v), 3)}
-                     for i, (u, v) in zip(det.vertex_ids, det.vertices_px)],
+        'vertices': [{'id': int(i), 'u_px': round(float(u), 3), 'v_px': round(float(v), 3),
+                      'score': round(float(sc), 4)}
+                     for i, (u, v), sc in zip(det.vertex_ids, det.vertices_px, det.scores())],
         'edges': [[int(a), int(b)] for a, b in det.edges],
     }
 
@@ -134,7 +135,7 @@ def vertices_array(result: FrameDetections) -> npt.NDArray[np.void]:
         block['u'], block['v'] = d.vertices_px[:, 0], d.vertices_px[:, 1]
         block['vertex_id'], block['object_id'] = d.vertex_ids, d.object_id
         block['target_type'] = targets.TARGET_TYPE_CODES[d.target_type]
-        block['edge_mask'], block['score'] = masks, d.score
+        block['edge_mask'], block['score'] = masks, d.scores()
         rows.append(block)
     return np.concatenate(rows) if rows else np.zeros(0, dtype=VERTEX_DTYPE)
 
@@ -152,8 +153,10 @@ def draw_overlay(image_bgr: npt.NDArray[np.uint8], result: FrameDetections
             pts = np.round(poly * 16).astype(np.int32).reshape(-1, 1, 2)
             cv2.polylines(out, [pts], True, _OVERLAY_BGR.get(label, (0, 255, 0)), 2,
                           cv2.LINE_AA, shift=4)
-        for (u, v), vid in zip(d.vertices_px, d.vertex_ids):
-            cv2.circle(out, (int(round(u)), int(round(v))), 4, (0, 255, 0), -1)
+        for (u, v), vid, sc in zip(d.vertices_px, d.vertex_ids, d.scores()):
+            # A filled dot for a seen vertex, a ring for an extrapolated one (score <= 0.5).
+            cv2.circle(out, (int(round(u)), int(round(v))), 4, (0, 255, 0),
+                       -1 if sc > 0.5 or sc >= d.score else 2)
             cv2.putText(out, f'{d.object_id}:{vid}', (int(u) + 5, int(v) - 5),
                         cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 255, 0), 1, cv2.LINE_AA)
     return out

@@ -8,7 +8,8 @@ in [0.1, 0.85], area close to the convex hull), and simplified to four corners. 
 then refined on the full-resolution image: edge points where the whiteness drops across the
 side (sub-pixel, on intensity profiles), a robust line fit, corners as intersections of the
 refined lines. A candidate is kept when every side is backed by image gradient and the
-rectangle it implies has the configured aspect ratio.
+rectangle it implies has the configured aspect ratio. When no whole sheet is found, five-sided
+regions are tried as a sheet with one corner hidden (``sheet_partial``, ``min_seen``).
 """
 from dataclasses import dataclass
 
@@ -16,7 +17,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from absscale_ros.core import lines, quads, sides, targets
+from absscale_ros.core import lines, quads, sheet_candidates, sheet_partial, sides, targets
 
 Array = npt.NDArray[np.float64]
 
@@ -52,6 +53,11 @@ class SheetConfig:
         unsaturated; a shaded sheet or a warm light stays well below this).
     :param max_outside_spread: the same spread test just outside the sides (the surface the
         sheet lies on), looser: shadows and a second surface at one side are common.
+    :param max_ridges: most sides whose colour recovers beyond a thin dark line
+        (``sides.ridge_ratio`` above ``ridge_ratio``): four are a floor tile between grout.
+    :param ridge_ratio: ``sides.ridge_ratio`` above which a side is such a line.
+    :param min_seen: a hidden corner is extrapolated only when both sides meeting there are
+        seen over at least this fraction of their length (1.0 turns it off).
     """
 
     sheet: str = 'letter'
@@ -73,6 +79,9 @@ class SheetConfig:
     max_inside_spread: float = 0.25
     max_saturation: float = 0.35
     max_outside_spread: float = 0.5
+    max_ridges: int = 1
+    ridge_ratio: float = 0.3
+    min_seen: float = 0.4
 
     def __post_init__(self) -> None:
         if not 0.0 < self.min_area_frac < 1.0:
@@ -89,116 +98,12 @@ class SheetConfig:
         return targets.sheet_model(self.sheet, size)
 
 
-def whiteness(image_bgr: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint8]:
-    """Return the (H, W) uint8 per-pixel minimum over B, G, R: high only on white."""
-    b, g, r = cv2.split(image_bgr)
-    return cv2.min(cv2.min(b, g), r)
-
-
-def rectangle_aspect(corners_px: Array, K: Array | None, focal_px: float,
-                     centre_px: Array) -> float:
-    """
-    Return the long/short side ratio of the rectangle whose image is ``corners_px`` (4, 2).
-
-    Zhang and He's whiteboard method: the two vanishing points give the focal length when it
-    is unknown (``K`` None), which falls back to ``focal_px`` when the sides are too close to
-    parallel to tell; with the intrinsics the homography gives the side ratio.
-    """
-    m = np.hstack([corners_px[[0, 1, 3, 2]], np.ones((4, 1))])  # m1 (0,0) m2 (w,0) m3 (0,h)
-    k2 = np.cross(m[0], m[3]) @ m[2] / (np.cross(m[1], m[3]) @ m[2])
-    k3 = np.cross(m[0], m[3]) @ m[1] / (np.cross(m[2], m[3]) @ m[1])
-    n2, n3 = k2 * m[1] - m[0], k3 * m[2] - m[0]
-    if K is None:
-        u0, v0 = centre_px
-        f2 = focal_px ** 2
-        if abs(n2[2] * n3[2]) > 1e-12:
-            est = -((n2[0] * n3[0] - (n2[0] * n3[2] + n2[2] * n3[0]) * u0
-                     + n2[2] * n3[2] * u0 ** 2)
-                    + (n2[1] * n3[1] - (n2[1] * n3[2] + n2[2] * n3[1]) * v0
-                       + n2[2] * n3[2] * v0 ** 2)) / (n2[2] * n3[2])
-            if (0.3 * focal_px) ** 2 < est < (3.0 * focal_px) ** 2:
-                f2 = est
-        K = np.array([[np.sqrt(f2), 0.0, u0], [0.0, np.sqrt(f2), v0], [0.0, 0.0, 1.0]])
-    Ki = np.linalg.inv(K)
-    a2, a3 = Ki @ n2, Ki @ n3
-    ratio = float(np.sqrt((a2 @ a2) / max(a3 @ a3, 1e-18)))
-    return max(ratio, 1.0 / max(ratio, 1e-12))
-
-
-def _masks(work_bgr: npt.NDArray[np.uint8], work_white: npt.NDArray[np.uint8],
-           cfg: SheetConfig) -> list[npt.NDArray[np.uint8]]:
-    """
-    Return binary candidate masks on the work image.
-
-    Whiteness above a few thresholds (Otsu and two higher levels) finds a sheet that is
-    clearly brighter than its surface; regions enclosed by colour edges (Canny on BGR) find
-    one that differs from the surface mostly in tint, where no grey threshold separates them.
-    """
-    otsu, _ = cv2.threshold(work_white, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
-    hist = np.cumsum(np.bincount(work_white.ravel(), minlength=256))
-    top = float(np.searchsorted(hist, 0.995 * hist[-1]))  # 99.5th percentile
-    masks = [(work_white > t).astype(np.uint8)
-             for t in (otsu, otsu + (top - otsu) / 3.0, otsu + 2.0 * (top - otsu) / 3.0)]
-    blurred = cv2.GaussianBlur(work_bgr, (3, 3), 0)
-    edges = cv2.Canny(blurred, cfg.canny_low, cfg.canny_high)
-    edges = cv2.dilate(edges, np.ones((3, 3), np.uint8))
-    free = (edges == 0).astype(np.uint8)
-    masks.append(free)  # edge-free regions: a sheet's blank areas
-    # Everything the image border cannot reach without crossing an edge: objects on the
-    # surface, with their text and drawings filled in.
-    flood = np.pad(free, 1, constant_values=1)
-    cv2.floodFill(flood, None, (0, 0), 2)
-    masks.append((flood[1:-1, 1:-1] != 2).astype(np.uint8))
-    return masks
-
-
-def _candidates(work_bgr: npt.NDArray[np.uint8], work_white: npt.NDArray[np.uint8],
-                cfg: SheetConfig) -> list[Array]:
-    """Return rough (4, 2) quadrilaterals, work-image px, from the candidate masks."""
-    min_area = cfg.min_area_frac * work_white.shape[0] * work_white.shape[1]
-    kernel = np.ones((3, 3), np.uint8)
-    quads: list[Array] = []
-    for mask in _masks(work_bgr, work_white, cfg):
-        # Closing heals thin dark lines across the sheet (text, a cable); the paper's 3x3
-        # opening, twice, then drops thin bridges to neighbouring objects.
-        mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8))
-        mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, kernel, iterations=2)
-        contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-        for c in contours:
-            quad = _shape_ok(c, min_area, cfg)
-            if quad is None or _touches_border(quad, work_white.shape):
-                continue  # a sheet cut by the image border has no trustworthy corners
-            if all(np.abs(quad - q).max() > 2.0 for q in quads):
-                quads.append(quad)
-    return quads
-
-
-def _touches_border(quad: Array, shape: tuple[int, ...]) -> bool:
-    """Return True when a work-image quad reaches within 1.5 px of the image border."""
-    h, w = shape[:2]
-    return bool((quad.min() < 1.5) or (quad[:, 0].max() > w - 2.5) or (quad[:, 1].max() > h - 2.5))
-
-
-def _shape_ok(contour: npt.NDArray[np.int32], min_area: float,
-              cfg: SheetConfig) -> Array | None:
-    """Apply the area, roundness (eq. 1) and convexity tests; return the rough quad or None."""
-    area = cv2.contourArea(contour)
-    if area < min_area:
-        return None
-    roundness = 4.0 * np.pi * area / max(cv2.arcLength(contour, True), 1e-9) ** 2  # eq. 1
-    if not cfg.roundness_min <= roundness <= cfg.roundness_max:
-        return None
-    if area < cfg.min_solidity * cv2.contourArea(cv2.convexHull(contour)):
-        return None
-    return lines.rough_quad(contour)
-
-
-def _order(corners: Array) -> Array:
-    """Return corners clockwise on screen (y down) from the one with the smallest u + v."""
+def _order(corners: Array) -> npt.NDArray[np.intp]:
+    """Return the order of corners clockwise on screen (y down) from the smallest u + v."""
     centre = corners.mean(axis=0)
     ang = np.arctan2(corners[:, 1] - centre[1], corners[:, 0] - centre[0])
-    corners = corners[np.argsort(ang)]  # increasing angle is clockwise when y points down
-    return np.roll(corners, -int(np.argmin(corners.sum(axis=1))), axis=0)
+    idx = np.argsort(ang)  # increasing angle is clockwise when y points down
+    return np.roll(idx, -int(np.argmin(corners[idx].sum(axis=1))))
 
 
 def refine_quad(image_bgr: npt.NDArray[np.uint8], quad_px: Array, coarse_band_px: float
@@ -243,14 +148,18 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
     scale = min(1.0, cfg.work_max_side_px / max(h, w))
     work = cv2.resize(image_bgr, (round(w * scale), round(h * scale)),
                       interpolation=cv2.INTER_AREA)
-    found: list[tuple[float, Array]] = []
-    for quad in _candidates(work, whiteness(work), cfg):
-        _accept(image_bgr, (quad + 0.5) / scale - 0.5, max(6.0, 3.0 / scale), cfg, K, found)
+    found: list[Found] = []
+    band = max(6.0, 3.0 / scale)
+    quads_, pents = sheet_candidates.candidates(work, cfg)
+    for quad in quads_:
+        _accept(image_bgr, (quad + 0.5) / scale - 0.5, band, cfg, K, found)
     if not found and cfg.line_candidates:
-        for quad_full, band in _line_candidates(image_bgr, cfg):
-            _accept(image_bgr, quad_full, band, cfg, K, found)
-    found.sort(key=lambda sc: -sc[0])
-    return [_detection(c, s, cfg.model()) for s, c in found]
+        for quad_full, line_band in _line_candidates(image_bgr, cfg):
+            _accept(image_bgr, quad_full, line_band, cfg, K, found)
+    if not found:
+        _accept_partial(image_bgr, [(p + 0.5) / scale - 0.5 for p in pents], band, cfg, K, found)
+    found.sort(key=lambda f: -f[0])
+    return [_detection(f, cfg.model()) for f in found]
 
 
 def _line_candidates(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig
@@ -265,7 +174,7 @@ def _line_candidates(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig
     centre = np.array([(work.shape[1] - 1) / 2.0, (work.shape[0] - 1) / 2.0])
     kept: list[Array] = []
     for quad in hyps:  # best supported first
-        aspect = rectangle_aspect(quad, None, cfg.focal_frac * max(work.shape), centre)
+        aspect = lines.rectangle_aspect(quad, None, cfg.focal_frac * max(work.shape), centre)
         if abs(aspect / cfg.model().aspect - 1.0) > 2.0 * cfg.aspect_tol:
             continue  # rough corners: a looser test here, the exact one after refinement
         if all(np.abs(quad - q).max() > 2.0 for q in kept):  # neighbouring Hough peaks
@@ -275,29 +184,71 @@ def _line_candidates(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig
     return [((q + 0.5) / scale - 0.5, max(6.0, 3.0 / scale)) for q in kept]
 
 
+# A sheet found: (score, (4, 2) corners, outline of the seen part, (4,) vertex scores or None).
+Found = tuple[float, Array, Array, Array | None]
+Refined = tuple[Array, Array, Array, Array, Array]
+
+
 def _accept(image_bgr: npt.NDArray[np.uint8], quad_full: Array, band: float, cfg: SheetConfig,
-            K: Array | None, found: list[tuple[float, Array]]) -> None:
-    """Refine a candidate; append (score, corners) to ``found`` when it passes every test."""
-    h, w = image_bgr.shape[:2]
-    if any(np.hypot(*(quad_full[:, None] - c[None]).T).min(axis=0).max() <= band
-           for _, c in found):
+            K: Array | None, found: list[Found]) -> None:
+    """Refine a candidate; append it to ``found`` when it passes every test."""
+    if any(np.hypot(*(quad_full[:, None] - f[1][None]).T).min(axis=0).max() <= band
+           for f in found):
         return  # another mask's outline of a sheet already found
     refined = refine_quad(image_bgr, quad_full, band)
-    if refined is None or refined[1].min() < cfg.min_support:
-        return
-    if refined[2].min() < cfg.min_contrast:
-        return  # not a sheet on a different surface all round
-    if not _one_colour(refined[3], cfg.max_inside_spread, cfg.max_saturation):
-        return  # four edges of different things (a table top, its legs, the floor)
-    if not _one_colour(refined[4], cfg.max_outside_spread, 1.0):
-        return  # a sheet lies on one surface: wall between table legs, floor below
-    corners = refined[0]
-    aspect = rectangle_aspect(corners, K, cfg.focal_frac * max(h, w),
-                              np.array([(w - 1) / 2.0, (h - 1) / 2.0]))
+    if refined is not None and _passes(image_bgr, refined, cfg, K) and \
+            all(np.abs(refined[0] - f[1]).max() > 4.0 for f in found):
+        found.append((float(refined[1].mean()), refined[0], refined[0], None))
+
+
+def _accept_partial(image_bgr: npt.NDArray[np.uint8], pents: list[Array], band: float,
+                    cfg: SheetConfig, K: Array | None, found: list[Found]) -> None:
+    """
+    Try every hidden-corner hypothesis of the pentagons; keep the best supported per pentagon.
+
+    The extrapolated corner scores half the sheet's support times the smaller seen fraction of
+    its two sides; the sheet's score is the mean over its corners.
+    """
+    for pent in pents:
+        best: Found | None = None
+        for hyp in sheet_partial.hypotheses(pent, cfg.min_seen):
+            if sheet_candidates.touches_border(hyp.corners[:3], image_bgr.shape, band):
+                continue  # the three seen corners must be inside the image
+            out = sheet_partial.refine(image_bgr, hyp, band)
+            if out is None or not _passes(image_bgr, out[:5], cfg, K, hyp.seen_ends):
+                continue
+            support = float(out[1].mean())
+            vs = np.array([support] * 3 + [0.5 * support * float(hyp.seen_frac.min())])
+            if best is None or support > best[0]:
+                best = (float(vs.mean()), out[0], out[5], vs)
+        if best is not None and all(np.abs(best[1] - f[1]).max() > 4.0 for f in found):
+            found.append(best)
+
+
+def _passes(image_bgr: npt.NDArray[np.uint8], refined: Refined, cfg: SheetConfig,
+            K: Array | None, seen_ends: Array | None = None) -> bool:
+    """
+    Apply the support, contrast, one-colour, aspect and floor-tile tests to a refined
+    quadrilateral (``seen_ends`` (4, 2, 2): the seen part of each side, default all of it).
+    """
+    corners, supports, steps, inside, outside = refined
+    if supports.min() < cfg.min_support or steps.min() < cfg.min_contrast:
+        return False  # not a sheet on a different surface all round
+    if not _one_colour(inside, cfg.max_inside_spread, cfg.max_saturation):
+        return False  # four edges of different things (a table top, its legs, the floor)
+    if not _one_colour(outside, cfg.max_outside_spread, 1.0):
+        return False  # a sheet lies on one surface: wall between table legs, floor below
+    h, w = image_bgr.shape[:2]
+    aspect = lines.rectangle_aspect(corners, K, cfg.focal_frac * max(h, w),
+                                    np.array([(w - 1) / 2.0, (h - 1) / 2.0]))
     if abs(aspect / cfg.model().aspect - 1.0) > cfg.aspect_tol:
-        return
-    if all(np.abs(corners - c).max() > 4.0 for _, c in found):
-        found.append((float(refined[1].mean()), corners))
+        return False
+    ends = np.stack([corners, np.roll(corners, -1, axis=0)], axis=1)
+    ends = ends if seen_ends is None else seen_ends
+    side_px = float(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1).mean())
+    ls = np.array([lines.line_through(a, b, corners.mean(axis=0)) for a, b in ends])
+    ridges = sides.ridge_ratio(image_bgr, ls, ends, max(8.0, 0.08 * side_px))
+    return int((ridges > cfg.ridge_ratio).sum()) <= cfg.max_ridges  # not a tile between grout
 
 
 def _one_colour(bgr: Array, max_spread: float, max_saturation: float) -> bool:
@@ -309,10 +260,11 @@ def _one_colour(bgr: Array, max_spread: float, max_saturation: float) -> bool:
         float(ref.max() - ref.min()) <= max_saturation * level
 
 
-def _detection(corners: Array, score: float, model: targets.SheetModel
-               ) -> targets.TargetDetection:
-    corners = _order(corners)
+def _detection(f: Found, model: targets.SheetModel) -> targets.TargetDetection:
+    score, corners, outline, vertex_scores = f
+    order = _order(corners)
     return targets.TargetDetection(
-        target_type='sheet', name=model.name, vertices_px=corners,
+        target_type='sheet', name=model.name, vertices_px=corners[order],
         vertex_ids=np.arange(4, dtype=np.int64), edges=model.edges(),
-        polygons=(('sheet', corners),), score=score)
+        polygons=(('sheet', outline if vertex_scores is not None else corners[order]),),
+        score=score, vertex_scores=None if vertex_scores is None else vertex_scores[order])

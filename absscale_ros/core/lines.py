@@ -94,3 +94,33 @@ def quad_corners(lines: list[Array]) -> Array | None:
             return None
         corners.append(p)
     return np.array(corners)
+
+
+def rectangle_aspect(corners_px: Array, K: Array | None, focal_px: float,
+                     centre_px: Array) -> float:
+    """
+    Return the long/short side ratio of the rectangle whose image is ``corners_px`` (4, 2).
+
+    Zhang and He's whiteboard method: the two vanishing points give the focal length when it
+    is unknown (``K`` None), which falls back to ``focal_px`` when the sides are too close to
+    parallel to tell; with the intrinsics the homography gives the side ratio.
+    """
+    m = np.hstack([corners_px[[0, 1, 3, 2]], np.ones((4, 1))])  # m1 (0,0) m2 (w,0) m3 (0,h)
+    k2 = np.cross(m[0], m[3]) @ m[2] / (np.cross(m[1], m[3]) @ m[2])
+    k3 = np.cross(m[0], m[3]) @ m[1] / (np.cross(m[2], m[3]) @ m[1])
+    n2, n3 = k2 * m[1] - m[0], k3 * m[2] - m[0]
+    if K is None:
+        u0, v0 = centre_px
+        f2 = focal_px ** 2
+        if abs(n2[2] * n3[2]) > 1e-12:
+            est = -((n2[0] * n3[0] - (n2[0] * n3[2] + n2[2] * n3[0]) * u0
+                     + n2[2] * n3[2] * u0 ** 2)
+                    + (n2[1] * n3[1] - (n2[1] * n3[2] + n2[2] * n3[1]) * v0
+                       + n2[2] * n3[2] * v0 ** 2)) / (n2[2] * n3[2])
+            if (0.3 * focal_px) ** 2 < est < (3.0 * focal_px) ** 2:
+                f2 = est
+        K = np.array([[np.sqrt(f2), 0.0, u0], [0.0, np.sqrt(f2), v0], [0.0, 0.0, 1.0]])
+    Ki = np.linalg.inv(K)
+    a2, a3 = Ki @ n2, Ki @ n3
+    ratio = float(np.sqrt((a2 @ a2) / max(a3 @ a3, 1e-18)))
+    return max(ratio, 1.0 / max(ratio, 1e-12))

@@ -142,3 +142,27 @@ def refine(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
         near = np.abs(np.einsum('snk,sk->sn', pts, lines_[:, :2]) + lines_[:, None, 2])
         support = np.where(usable, (keep & (near < tol[:, None])).sum(axis=1) / n, 0.0)
     return lines_, support, np.linalg.norm(step, axis=1), inside, outside
+
+
+def ridge_ratio(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array, band_px: float,
+                n: int = 16) -> Array:
+    """
+    Return (S,) how far the colour recovers beyond each refined side: near 0 for a step edge
+    (a sheet on a desk: the desk goes on), near 1 for a thin line between two surfaces alike
+    (the grout between floor tiles).
+
+    On the median colour profile across a side: the outside colour farthest from the inside
+    one (the line, or the surface beyond a step), and ``|far outside - that| / |inside - that|``.
+    Colour distances, so a step in tint alone is measured like one in brightness.
+
+    :param band_px: how far inside and outside the profiles reach, px.
+    """
+    _, offs, samples = _profiles(image_bgr, lines_, ends, band_px, n)
+    prof = np.median(samples, axis=1)  # (S, K, 3)
+    inside = np.median(prof[:, offs < -0.5 * band_px], axis=1)
+    far = np.median(prof[:, offs >= 0.6 * band_px], axis=1)
+    out = prof[:, offs > 0.5]
+    k = np.argmax(np.linalg.norm(out - inside[:, None], axis=2), axis=1)
+    extreme = out[np.arange(len(out)), k]
+    return np.linalg.norm(far - extreme, axis=1) / \
+        np.maximum(np.linalg.norm(inside - extreme, axis=1), 1.0)

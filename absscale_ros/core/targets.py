@@ -135,6 +135,10 @@ class TargetDetection:
         float64 polygon in px; used to measure pixel precision and recall.
     :param score: edge support in [0, 1] (fraction of the outline backed by image gradient).
     :param object_id: index of the object in its frame (set by ``detect.detect``).
+    :param vertex_scores: (N,) float64 per-vertex score in [0, 1], or None when every vertex
+        has ``score``. A vertex not seen but extrapolated (a sheet corner hidden by an object
+        or outside the image, ``sheet_partial``) scores at most 0.5: later stages can weigh or
+        drop it.
     """
 
     target_type: str
@@ -145,3 +149,10 @@ class TargetDetection:
     polygons: tuple[tuple[str, npt.NDArray[np.float64]], ...]
     score: float
     object_id: int = 0
+    vertex_scores: npt.NDArray[np.float64] | None = None
+
+    def scores(self) -> npt.NDArray[np.float64]:
+        """Return the (N,) per-vertex scores (``score`` everywhere unless given)."""
+        if self.vertex_scores is None:
+            return np.full(len(self.vertices_px), self.score)
+        return np.asarray(self.vertex_scores, dtype=np.float64)

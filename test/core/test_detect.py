@@ -89,6 +89,55 @@ def test_sheet_partly_occluded_still_found():
     assert np.median(_sheet_errors(dets[0], true_px)[1]) < 0.005
 
 
+@pytest.mark.parametrize('box', [
+    [[680, 500], [800, 470], [830, 640], [700, 660]],  # covers the bottom right corner
+    [[700, 100], [900, 100], [900, 300], [700, 300]]])  # covers the top right corner
+def test_sheet_with_one_hidden_corner_extrapolated_and_marked(box):
+    true_px = st.sheet_corners(width_px=320, angle_deg=5)
+
+    def extra(img):  # a box on the sheet hides one corner
+        st.fill(img, box, (50, 60, 40))
+    img = st.render_sheet(_rng(3), true_px, extra=extra)
+    dets = detect_sheet.detect_sheets(img, detect_sheet.SheetConfig(sheet='a4'))
+    assert len(dets) == 1
+    d = dets[0]
+    hidden = [i for i, p in enumerate(true_px)
+              if cv2.pointPolygonTest(np.float32(box), (float(p[0]), float(p[1])), False) > 0]
+    assert len(hidden) == 1
+    err, rel = _sheet_errors(d, true_px)
+    seen = np.delete(err, hidden)
+    assert seen.max() < 1.0  # the three seen corners as exact as a whole sheet's
+    assert rel.max() < 0.02  # the extrapolated one: where its two sides meet
+    scores = d.scores()
+    far = int(np.argmax(np.hypot(*(d.vertices_px - true_px[hidden[0]]).T) < 10.0))
+    assert scores[far] <= 0.5 < np.delete(scores, far).min() and d.score < 1.0
+    seen_poly = d.polygons[0][1]  # the outline reported is the seen part only
+    assert cv2.pointPolygonTest(seen_poly.astype(np.float32),
+                                tuple(float(x) for x in true_px[hidden[0]]), False) < 0
+    # Switched off, the sheet is not reported at all.
+    off = detect_sheet.SheetConfig(sheet='a4', min_seen=1.0)
+    assert detect_sheet.detect_sheets(img, off) == []
+
+
+def test_floor_tile_between_grout_lines_is_not_a_sheet():
+    """Light tiles of the sheet's aspect: each outline is a dark line with tile beyond it."""
+    rng = _rng(5)
+    img = st._background(rng, (70, 75, 80))  # grout
+
+    def tiles(img):
+        for r in range(-1, 4):
+            for c in range(-1, 6):
+                shade = 190 + 30 * ((r + c) % 2)
+                st.fill(img, st.sheet_corners((100 + 228 * c, 80 + 319 * r), 220,
+                                              aspect=297.0 / 210.0, angle_deg=0),
+                        (shade, shade + 2, shade + 4))
+    tiles(img)
+    img = st._finish(img, rng)
+    cfg = detect_sheet.SheetConfig(sheet='a4')
+    assert detect_sheet.detect_sheets(img, cfg) == []
+    assert detect_sheet.detect_sheets(img, detect_sheet.SheetConfig(sheet='a4', max_ridges=4))
+
+
 def test_sheet_smaller_than_area_threshold_rejected():
     # 0.005 * 1280 * 720 = 4608 px; a 50 x 71 px sheet is 3550 px.
     img = st.render_sheet(_rng(4), st.sheet_corners(width_px=50))
@@ -103,9 +152,9 @@ def test_rectangle_aspect_under_perspective():
     obj = np.array([[0, 0, 0], [w, 0, 0], [w, h, 0], [0, h, 0]])
     rvec = np.array([0.7, -0.3, 0.2])
     img_pts, _ = cv2.projectPoints(obj, rvec, np.array([-0.1, -0.1, 0.8]), K, None)
-    aspect = detect_sheet.rectangle_aspect(img_pts.reshape(4, 2), K, 0.0, K[:2, 2])
+    aspect = lines.rectangle_aspect(img_pts.reshape(4, 2), K, 0.0, K[:2, 2])
     assert aspect == pytest.approx(h / w, rel=1e-6)
-    est = detect_sheet.rectangle_aspect(img_pts.reshape(4, 2), None, 1000.0, K[:2, 2])
+    est = lines.rectangle_aspect(img_pts.reshape(4, 2), None, 1000.0, K[:2, 2])
     assert est == pytest.approx(h / w, rel=0.02)
 
 
@@ -146,7 +195,7 @@ def test_real_smartdoc_frames_line_hypotheses_alone():
         found = []
         for quad, band in detect_sheet._line_candidates(img, cfg):
             detect_sheet._accept(img, quad, band, cfg, None, found)
-        return [detect_sheet._detection(c, s, cfg.model()) for s, c in found]
+        return [detect_sheet._detection(f, cfg.model()) for f in found]
     found, rels = _real_figures(lines_only)
     assert found >= 4
     assert np.median(rels) <= 0.005

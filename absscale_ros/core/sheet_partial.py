@@ -1,0 +1,103 @@
+"""
+Sheet hypotheses with one corner hidden (by an object on the sheet, or outside the image).
+
+A sheet with one corner covered is a five-sided region: two whole sides, the two sides next
+to the hidden corner seen only in part, and the occluder's (or the image border's) cut. Every
+side of the region's simplified convex hull is tried as the cut: the two sides next to it,
+extended, meet at the hidden corner. A hypothesis is kept when that corner lies beyond the
+cut and each extended side is seen over at least ``min_seen`` of its length; the detector then
+refines the four sides only along their seen parts and applies its usual tests. The hidden
+corner is an extrapolation, so the detection carries a lower score for it (``vertex_scores``).
+"""
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from absscale_ros.core import lines, sides
+
+Array = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True, eq=False)
+class Partial:
+    """
+    A four-corner hypothesis whose fourth corner (index 3) is hidden.
+
+    :param corners: (4, 2) px, corners 0..2 seen, 3 extrapolated (cyclic order).
+    :param seen_ends: (4, 2, 2) px, the seen part of each side ``i`` (corner ``i`` to ``i+1``).
+    :param seen_frac: (2,) seen fraction of the two sides at the hidden corner (sides 2, 3).
+    """
+
+    corners: Array
+    seen_ends: Array
+    seen_frac: Array
+
+
+def pentagon(contour: npt.NDArray[np.int32]) -> Array | None:
+    """Return the (5, 2) simplified convex hull of a contour when it has five vertices."""
+    hull = cv2.convexHull(contour)
+    perim = cv2.arcLength(hull, True)
+    for frac in (0.01, 0.02, 0.03):
+        approx = cv2.approxPolyDP(hull, frac * perim, True)
+        if len(approx) == 5:
+            return np.asarray(approx.reshape(5, 2), dtype=np.float64)
+        if len(approx) < 5:
+            return None
+    return None
+
+
+def hypotheses(poly: Array, min_seen: float) -> list[Partial]:
+    """
+    Return hidden-corner hypotheses of a convex pentagon (5, 2), one per plausible cut side.
+
+    Cut side ``(p3, p4)``: the corner is the intersection of lines ``p2 p3`` and ``p4 p0``,
+    beyond the cut, with ``|p2 p3| >= min_seen |p2 corner|`` and likewise for ``p4 p0``.
+    """
+    out = []
+    centre = poly.mean(axis=0)
+    for k in range(5):
+        p = np.roll(poly, -(k + 2), axis=0)  # p[3], p[4]: the cut
+        corner = lines.intersect(lines.line_through(p[2], p[3], centre),
+                                 lines.line_through(p[4], p[0], centre))
+        if corner is None:
+            continue
+        cut = lines.line_through(p[3], p[4], centre)
+        if cut[:2] @ corner + cut[2] <= 1.0:
+            continue  # not beyond the cut: these sides do not meet at a hidden corner
+        frac = np.array([np.hypot(*(p[3] - p[2])) / max(np.hypot(*(corner - p[2])), 1e-9),
+                         np.hypot(*(p[0] - p[4])) / max(np.hypot(*(p[0] - corner)), 1e-9)])
+        if frac.min() < min_seen or frac.max() > 1.0:
+            continue
+        corners = np.array([p[0], p[1], p[2], corner])
+        ends = np.array([[p[0], p[1]], [p[1], p[2]], [p[2], p[3]], [p[4], p[0]]])
+        out.append(Partial(corners, ends, frac))
+    return out
+
+
+def refine(image_bgr: npt.NDArray[np.uint8], hyp: Partial, band_px: float
+           ) -> tuple[Array, Array, Array, Array, Array, Array] | None:
+    """
+    Refine a hypothesis's sides along their seen parts and intersect them.
+
+    :returns: ((4, 2) corners, (4,) supports, (4,) colour steps, (4, 3) inside colours,
+        (4, 3) outside colours, (5, 2) outline of the seen part) or None.
+    """
+    centre = hyp.corners.mean(axis=0)
+    rough = np.array([lines.line_through(a, b, centre) for a, b in hyp.seen_ends])
+    seen_len = np.linalg.norm(hyp.seen_ends[:, 1] - hyp.seen_ends[:, 0], axis=1)
+    n = int(np.clip(seen_len.mean() / 4.0, 16, 64))
+    refined, supports, steps, inside, outside = sides.refine(
+        image_bgr, rough, hyp.seen_ends, (band_px, 4.0, 3.0), n)
+    corners = lines.quad_corners(list(refined))
+    if corners is None or not cv2.isContourConvex(corners.astype(np.float32)):
+        return None
+    if np.abs(corners - hyp.corners).max() > 2.0 * band_px + 4.0:
+        return None
+    # The seen outline: the cut points moved onto the refined sides.
+    cuts = [hyp.seen_ends[2, 1], hyp.seen_ends[3, 0]]
+    cuts = [q - (refined[s, :2] @ q + refined[s, 2]) * refined[s, :2]
+            for s, q in zip((2, 3), cuts)]
+    outline = np.array([corners[0], corners[1], corners[2], cuts[0], cuts[1]])
+    return corners, supports, steps, inside, outside, outline
