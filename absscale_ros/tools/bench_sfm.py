@@ -1,13 +1,17 @@
 """
 ``absscale bench sfm BAG...``: incremental SfM accuracy and speed against simulator truth.
 
-Keyframes are every ``--every``-th frame (until the keyframe selector is wired in) and the
-"detected" vertices are the ground-truth ``vertices_px`` of visible vertices plus Gaussian
-noise (``--vertex-noise-px``; until the vertex detector is wired in). Sources are bags with
-``BAG.gt.json`` beside them, or ``--sim SCENE:SEED`` rendered on the fly. Prints per bag: camera
-centre RMSE after a Sim(3) (Umeyama) alignment as % of the trajectory length, reprojection RMS,
-vertex landmarks and their 3D error (same alignment) as % of the scene extent, median and max
-update time per keyframe, segments; optionally the same keyframes through pycolmap.
+Keyframes are every ``--every``-th frame, or the keyframe selector's choice (``--select``, with
+the ground-truth target areas), or exactly those of an ``absscale run`` (``--keyframes-from
+report.json``). Vertices are the ground-truth ``vertices_px`` of visible vertices plus Gaussian
+noise (``--vertex-noise-px``), or the vertex detector's (``--detector``; then a landmark is
+scored against the nearest true vertex). Sources are bags with ``BAG.gt.json`` beside them, or
+``--sim SCENE:SEED`` rendered on the fly. Prints per bag: camera centre RMSE after a Sim(3)
+(Umeyama) alignment as % of the trajectory length, reprojection RMS, vertex landmarks and their
+3D error (same alignment) as % of the scene extent (all, and those the scale node would use),
+median and max update time per keyframe (wall, and CPU: on a shared machine wall time
+overstates), segments; optionally the same keyframes through pycolmap. ``--run DIR`` (one per
+BAG) instead scores the scale factor of a finished ``absscale run`` against the truth.
 """
 import argparse
 import json
