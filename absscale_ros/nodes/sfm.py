@@ -140,8 +140,8 @@ class SfmNode(Node):
         """
         Keyframes, segments, reprojection and update times, for report.json.
 
-        :param full_rms: RMS over the whole published segment (else over the newest keyframes,
-            as the last update measured it: cheap enough for every keyframe).
+        :param full_rms: RMS over the whole published segment (else over its newest three
+            keyframes: cheap enough for every keyframe).
         """
         times = np.array(self._times_ms or [np.nan])
         out: dict[str, Any] = {'keyframes_in': len(self._times_ms), 'keyframes_registered': 0,
@@ -155,8 +155,8 @@ class SfmNode(Node):
             out.update(keyframes_registered=len(m.keyframes), landmarks=len(m.landmarks),
                        segments=len(self.engine.segments),
                        target_vertices=sum(lm.label is not None for lm in m.landmarks.values()),
-                       reprojection_rms_px=m.reprojection_rms_px(self.engine.K) if full_rms
-                       else self._last.reprojection_rms_px if self._last else float('nan'),
+                       reprojection_rms_px=m.reprojection_rms_px(
+                           self.engine.K, None if full_rms else set(sorted(m.keyframes)[-3:])),
                        keyframes_registered_all=sum(len(s.map.keyframes)
                                                     for s in self.engine.segments))
         return out
