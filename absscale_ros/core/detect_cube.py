@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from absscale_ros.core import lines, sides, targets
+from absscale_ros.core import cube_assembly, cube_strips, lines, sides, targets
 
 Array = npt.NDArray[np.float64]
 
@@ -45,6 +45,8 @@ class CubeConfig:
     :param min_support: smallest fraction of each face side backed by a mask edge.
     :param min_step: smallest colour step across a face side (BGR units, 0-255 scale).
     :param work_max_side_px: the mask stage runs on an image at most this big.
+    :param strip_max_px: widest face seen edge-on looked for as a strip along a face side
+        (``cube_strips``; 0 turns it off).
     """
 
     hue_red_deg: tuple[float, float] = (340.0, 20.0)
@@ -64,6 +66,7 @@ class CubeConfig:
     min_support: float = 0.5
     min_step: float = 15.0
     work_max_side_px: int = 640
+    strip_max_px: float = 20.0
 
     def __post_init__(self) -> None:
         for name in ('hue_red_deg', 'hue_yellow_deg', 'hue_purple_deg'):
@@ -85,12 +88,16 @@ class CubeConfig:
 
 @dataclass(frozen=True, eq=False)
 class Face:
-    """A detected face: colour, (4, 2) corners px, (4, 3) side lines, side supports."""
+    """
+    A detected face: colour, (4, 2) corners px, (4, 3) side lines, side supports; ``thin``
+    for a strip seen edge-on (``cube_strips``: only its corners 0 and 3 are measured).
+    """
 
     colour: str
     corners_px: Array
     lines: Array
     supports: Array
+    thin: bool = False
 
 
 def colour_mask(hsv: npt.NDArray[np.uint8], hue_deg: tuple[float, float], cfg: CubeConfig
@@ -205,28 +212,24 @@ def detect_faces(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig) -> list[Face
     return _refine_faces(image_bgr, rough, cfg)
 
 
-def _find(parent: list[int], i: int) -> int:
-    while parent[i] != i:
-        parent[i] = parent[parent[i]]
-        i = parent[i]
-    return i
+def _strips(image_bgr: npt.NDArray[np.uint8], faces: list[Face], cfg: CubeConfig
+            ) -> list[Face]:
+    """Return thin faces (strips of another cube colour) along unshared face sides."""
+    if cfg.strip_max_px <= 0.0:
+        return []
 
-
-def _cluster_corners(faces: list[Face], cfg: CubeConfig) -> npt.NDArray[np.int64]:
-    """Return a cluster label per face corner (F*4,), merging near corners of other faces."""
-    pts = np.concatenate([f.corners_px for f in faces])
-    owner = np.repeat(np.arange(len(faces)), 4)
-    side = np.array([np.hypot(*(f.corners_px - np.roll(f.corners_px, -1, 0)).T).min()
-                     for f in faces])
-    parent = list(range(len(pts)))
-    for i in range(len(pts)):
-        for j in range(i + 1, len(pts)):
-            if owner[i] == owner[j] or faces[owner[i]].colour == faces[owner[j]].colour:
-                continue
-            tol = max(3.0, cfg.merge_frac * min(side[owner[i]], side[owner[j]]))
-            if np.hypot(*(pts[i] - pts[j])) < tol:
-                parent[_find(parent, i)] = _find(parent, j)
-    return np.array([_find(parent, i) for i in range(len(pts))], dtype=np.int64)
+    def masks_of(bgr: npt.NDArray[np.uint8]) -> dict[str, npt.NDArray[np.bool_]]:
+        hsv = cv2.cvtColor(bgr, cv2.COLOR_BGR2HSV)
+        return {c: colour_mask(hsv, hue, cfg) > 0 for c, hue in cfg.hue_ranges().items()}
+    out = []
+    for colour, corners, support in cube_strips.strip_faces(
+            image_bgr, [f.corners_px for f in faces], [f.colour for f in faces], masks_of,
+            cfg.strip_max_px):
+        centre = corners.mean(axis=0)
+        ls = np.array([lines.line_through(corners[k], corners[(k + 1) % 4], centre)
+                       for k in range(4)])
+        out.append(Face(colour, corners, ls, np.full(4, support), thin=True))
+    return out
 
 
 def detect_cubes(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
@@ -241,59 +244,32 @@ def detect_cubes(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
     faces = detect_faces(image_bgr, cfg)
     if not faces:
         return []
-    labels = _cluster_corners(faces, cfg)
+    faces += _strips(image_bgr, faces, cfg)
+    labels = cube_assembly.cluster_corners(faces, cfg.merge_frac)
     # Faces that share two vertices share an edge: union them into cubes.
     parent = list(range(len(faces)))
     for a in range(len(faces)):
         for b in range(a + 1, len(faces)):
             shared = set(labels[4 * a:4 * a + 4]) & set(labels[4 * b:4 * b + 4])
             if len(shared) >= 2:
-                parent[_find(parent, a)] = _find(parent, b)
+                parent[cube_assembly.find(parent, a)] = cube_assembly.find(parent, b)
     groups: dict[int, list[int]] = {}
     for f in range(len(faces)):
-        groups.setdefault(_find(parent, f), []).append(f)
+        groups.setdefault(cube_assembly.find(parent, f), []).append(f)
     out = []
     for members in groups.values():
-        colours = {faces[f].colour for f in members}
-        if len(members) < cfg.min_faces or len(colours) < len(members):
+        thick = [f for f in members if not faces[f].thin]
+        colours = {faces[f].colour for f in thick}
+        if len(colours) < len(thick):
             continue  # opposite faces are never both visible: same colour twice is not a cube
+        # One face seen edge-on along two faces gives two strips; none is a face found whole.
+        members = thick + [f for f in members if faces[f].thin and faces[f].colour not in colours]
+        if len(colours | {faces[f].colour for f in members}) < cfg.min_faces:
+            continue
         area = sum(cv2.contourArea(faces[f].corners_px.astype(np.float32)) for f in members)
         if area < cfg.min_area_frac * image_bgr.shape[0] * image_bgr.shape[1]:
             continue  # the paper's area test, on the whole cube
-        out.append(_cube_detection([faces[f] for f in members],
-                                   [labels[4 * f:4 * f + 4] for f in members]))
+        out.append(cube_assembly.cube_detection([faces[f] for f in members],
+                                                [labels[4 * f:4 * f + 4] for f in members]))
     out.sort(key=lambda d: -d.score)
     return out
-
-
-def _cube_detection(faces: list[Face], labels: list[npt.NDArray[np.int64]]
-                    ) -> targets.TargetDetection:
-    """Assemble vertices (least-squares points of meeting edges), ids and edges of a cube."""
-    keys = sorted({int(k) for lab in labels for k in lab})
-    index = {k: i for i, k in enumerate(keys)}
-    meeting: list[list[Array]] = [[] for _ in keys]
-    masks = np.zeros(len(keys), dtype=np.int64)
-    edges = set()
-    for face, lab in zip(faces, labels):
-        for c in range(4):
-            v = index[int(lab[c])]
-            meeting[v] += [face.lines[c - 1], face.lines[c]]  # the two sides at corner c
-            masks[v] |= targets.COLOUR_BITS[face.colour]
-            w = index[int(lab[(c + 1) % 4])]
-            edges.add((min(v, w), max(v, w)))
-    vertices = np.array([lines.nearest_point(np.array(ls)) for ls in meeting])
-    ids = np.zeros(len(keys), dtype=np.int64)
-    centre = vertices.mean(axis=0)
-    # Clockwise from the top (image y down) among vertices with the same colour mask.
-    ang = np.mod(np.arctan2(vertices[:, 1] - centre[1], vertices[:, 0] - centre[0]) + np.pi / 2,
-                 2 * np.pi)
-    for m in np.unique(masks):
-        same = np.flatnonzero(masks == m)
-        for k, v in enumerate(same[np.argsort(ang[same])]):
-            ids[v] = targets.cube_vertex_id(int(m), k)
-    score = float(np.mean([f.supports.mean() for f in faces]))
-    polygons = tuple((f.colour, f.corners_px) for f in faces)
-    return targets.TargetDetection(
-        target_type='cube', name='cube', vertices_px=vertices, vertex_ids=ids,
-        edges=np.array(sorted(edges), dtype=np.int64).reshape(-1, 2), polygons=polygons,
-        score=score)

@@ -1,0 +1,91 @@
+"""
+Cube faces seen almost edge-on: thin strips of another cube colour along a detected face.
+
+A face seen nearly edge-on is a few pixels wide: the mask opening removes it, or it fails the
+roundness test, so the cube shows a single face and is not reported (a single face names no
+vertex uniquely). Along each side of a detected face that no other detected face shares,
+colour profiles outward from the side look for a strip of one of the other cube colours that
+starts at the side and ends within ``max_width``. Its width, fitted linearly along the side (a
+foreshortened face is a trapezoid), gives the strip's two far corners. The strip becomes a
+thin ``Face`` sharing the side's two corners, so the cube is assembled as usual; its far
+corners are measured on a few pixels only (along the side's normal, not along the unknown
+third cube edge), so the detector reports the strip's outline and colour but not those
+corners as vertices.
+"""
+from typing import Callable
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from absscale_ros.core import lines
+
+Array = npt.NDArray[np.float64]
+# (..., 3) uint8 BGR samples -> {colour name: (...) bool, the samples of that cube colour}
+MaskFn = Callable[[npt.NDArray[np.uint8]], dict[str, npt.NDArray[np.bool_]]]
+STEP_PX = 0.5  # sample spacing across the side
+PROFILES = 16  # profiles per side
+
+
+def _shared(face_corners: list[Array], f: int, i: int, tol: float) -> bool:
+    """Return True when another face has corners at both ends of side ``i`` of face ``f``."""
+    c0, c1 = face_corners[f][i], face_corners[f][(i + 1) % 4]
+    return any(np.hypot(*(c - c0).T).min() < tol and np.hypot(*(c - c1).T).min() < tol
+               for g, c in enumerate(face_corners) if g != f)
+
+
+def _widths(inside: npt.NDArray[np.bool_], offs: Array) -> Array:
+    """
+    Return (P,) strip width px per profile (NaN when the strip does not start at the side or
+    does not end inside the band): the last in-colour offset of the run from the side.
+    """
+    first = np.argmax(inside[:, :4], axis=1)  # the run may start after a mixed edge pixel
+    started = inside[:, :4].any(axis=1)
+    idx = np.arange(inside.shape[1])[None, :]
+    after = ~inside & (idx > first[:, None])
+    ends = np.where(after.any(axis=1), np.argmax(after, axis=1), -1)
+    w = np.where(started & (ends > 0), offs[np.maximum(ends - 1, 0)] + 0.5 * STEP_PX, np.nan)
+    return w
+
+
+def strip_faces(image_bgr: npt.NDArray[np.uint8], corners: list[Array], colours: list[str],
+                masks_of: MaskFn, max_width: float, min_width: float = 1.5,
+                min_frac: float = 0.75) -> list[tuple[str, Array, float]]:
+    """
+    Return (colour, (4, 2) corners px, support) of thin strips along unshared face sides.
+
+    Strip corners are ``[c_i, far_i, far_i1, c_i1]`` for side ``c_i -> c_i1`` of its face.
+
+    :param corners: per detected face its (4, 2) corners px (full-resolution image).
+    :param colours: per face its colour name.
+    :param masks_of: ``(bgr (..., 3) uint8) -> {colour: (...) bool}`` cube colour test.
+    :param max_width: widest strip looked for, px (wider faces are found as faces).
+    """
+    out = []
+    for f, (cs, colour) in enumerate(zip(corners, colours)):
+        centre = cs.mean(axis=0)
+        for i in range(4):
+            c0, c1 = cs[i], cs[(i + 1) % 4]
+            length = float(np.hypot(*(c1 - c0)))
+            if length < 8.0 or _shared(corners, f, i, max(3.0, 0.1 * length)):
+                continue
+            n = lines.line_through(c0, c1, centre)[:2]  # outward
+            ts = 0.15 + 0.7 * (np.arange(PROFILES) + 0.5) / PROFILES
+            offs = np.arange(0.5, min(max_width, 0.5 * length) + 1e-9, STEP_PX)
+            xy = (c0 + ts[:, None] * (c1 - c0))[:, None, :] + offs[None, :, None] * n
+            bgr = cv2.remap(image_bgr, xy[..., 0].astype(np.float32),
+                            xy[..., 1].astype(np.float32), cv2.INTER_LINEAR)
+            for other, inside in masks_of(bgr).items():
+                if other == colour:
+                    continue
+                w = _widths(inside, offs)
+                ok = np.isfinite(w) & (w >= min_width)
+                if ok.mean() < min_frac:
+                    continue
+                slope, icpt = np.polyfit(ts[ok], w[ok], 1)
+                w0, w1 = icpt, icpt + slope
+                if min(w0, w1) < 0.5 * min_width:
+                    continue
+                strip = np.array([c0, c0 + w0 * n, c1 + w1 * n, c1])
+                out.append((other, strip, float(ok.mean())))
+    return out
