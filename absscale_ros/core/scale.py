@@ -32,10 +32,15 @@ class ScaleConfig:
     outlier_sigma: float = 3.5  # reject a vertex whose pairs deviate by this many MADs
     max_relative_sigma: float = 0.01  # claim a scale only when sigma / factor is below this
     confidence: float = 0.95  # of the reported interval
+    # The vertex residuals only see noise at the target; the reconstruction's own scale drift
+    # between the target and the rest of the scene adds this much (relative, 1 sigma).
+    drift_sigma_rel: float = 0.0
 
     def __post_init__(self) -> None:
         if self.min_vertices < 2 or self.min_observations < 1:
             raise ValueError('min_vertices must be >= 2 and min_observations >= 1')
+        if self.drift_sigma_rel < 0.0:
+            raise ValueError('drift_sigma_rel must be >= 0')
         if not 0.0 < self.confidence < 1.0 or self.max_relative_sigma <= 0.0:
             raise ValueError('confidence must be in (0, 1) and max_relative_sigma > 0')
 
@@ -276,10 +281,15 @@ def estimate(objects: list[ObjectVertices], cfg: ScaleConfig) -> ScaleEstimate:
     n_vertices = sum(int(round((1 + np.sqrt(1 + 8 * len(m))) / 2)) for m in measured)
     sigma *= np.sqrt(len(x) / max(1, n_vertices - 1))
     t_crit = float(stats.t.ppf(0.5 + cfg.confidence / 2, max(1, n_vertices - 1)))
+    # The drift term is a model, not a sample: it widens sigma but takes no t-correction.
+    local = sigma
+    sigma = float(np.hypot(local, cfg.drift_sigma_rel * factor))
+    half = float(np.hypot(t_crit * local, stats.norm.ppf(0.5 + cfg.confidence / 2)
+                          * cfg.drift_sigma_rel * factor))
     if sigma / factor > cfg.max_relative_sigma:
         raise NotObservableError(f'scale too uncertain: sigma {100 * sigma / factor:.2f}% > '
                                  f'{100 * cfg.max_relative_sigma:.2f}% of the factor')
-    return ScaleEstimate(factor, sigma, (factor - t_crit * sigma, factor + t_crit * sigma),
+    return ScaleEstimate(factor, sigma, (factor - half, factor + half),
                          x, y, factor * x - y, len(measured), rejected)
 
 

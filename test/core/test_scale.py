@@ -106,3 +106,14 @@ def test_sheet_size_chosen_by_shape_or_refused() -> None:
     only_letter = scale.ObjectVertices('sheet', LETTER, a4.points, a4.n_obs, a4.angles_deg)
     with pytest.raises(NotObservableError):  # an A4 sheet is never scaled as letter
         scale.estimate([only_letter], CFG)
+
+
+def test_drift_term_widens_sigma_and_interval() -> None:
+    rng = np.random.default_rng(6)
+    obj = _reconstructed('sheet', LETTER, 1.0, 0.0003, rng)
+    local = scale.estimate([obj], CFG)
+    wide = scale.estimate([obj], scale.ScaleConfig(drift_sigma_rel=0.003))
+    assert wide.factor == local.factor
+    assert wide.sigma == pytest.approx(np.hypot(local.sigma, 0.003 * local.factor))
+    assert wide.interval[1] - wide.interval[0] > local.interval[1] - local.interval[0]
+    assert wide.interval[1] - wide.factor >= 1.96 * 0.003 * wide.factor
