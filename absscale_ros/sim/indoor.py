@@ -15,6 +15,7 @@ DESK_LIGHT = Material('laminate', (0.97, 0.97, 0.97), 0.0008)  # only slightly d
 WOOD = Material('parquet', (0.9, 0.85, 0.8), 0.0012)
 BOOKS = Material('books', (1.0, 1.0, 1.0), 0.0018)
 CARDBOARD = Material('cardboard', (1.0, 1.0, 1.0), 0.0008)
+MUG = Material('paint', (0.25, 0.45, 0.7), 0.0005)
 
 
 def build(seed: int, variant: dict[str, object], rng: np.random.Generator) -> Scene:
@@ -56,10 +57,11 @@ def build(seed: int, variant: dict[str, object], rng: np.random.Generator) -> Sc
         away = -1.0 if centre[0] > dx else 1.0  # keep the desk distractors off the sheet
         _distractors(b, rng, lx, ly, dx + away * 0.02, dy, dw, dd, dh, away)
     if variant['occluded']:
+        # A mug over one corner: that corner and bits of two edges are hidden.
         corner = sheet.vertices_world_m[rng.integers(4)]
-        toward = centre - corner
-        pos = corner + 0.25 * toward + np.array([0.0, 0.0, 0.05])
-        b.box(pos, [0.16, 0.23, 0.10], rng.uniform(0, np.pi), CARDBOARD, label='occluding box')
+        toward = (centre - corner) / np.linalg.norm(centre - corner)
+        pos = corner + 0.03 * toward + np.array([0.0, 0.0, 0.055])
+        b.box(pos, [0.085, 0.085, 0.11], rng.uniform(0, np.pi), MUG, label='occluding mug')
     near = rng.uniform(0.75, 1.1)
     b.walk = {'target_x': centre[0], 'target_y': centre[1], 'target_z': centre[2],
               'approach_rad': -np.pi / 2 + rng.uniform(-0.3, 0.3),

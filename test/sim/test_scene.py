@@ -74,7 +74,7 @@ def test_distractor_and_occlusion_variants() -> None:
         assert sorted(d['size_m']) not in ([0.2159, 0.2794], [0.210, 0.297])
     indoor = scenes.build_scene('indoor_paper', 12)  # seed 12: distractors + occlusion
     assert indoor.variant['distractors'] and indoor.variant['occluded']
-    assert any(p['label'] == 'occluding box edge 0-1' for p in indoor.point_pairs)
+    assert any(p['label'] == 'occluding mug edge 0-1' for p in indoor.point_pairs)
 
 
 def test_unknown_scene_and_variant_raise() -> None:
