@@ -146,8 +146,7 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
     """
     h, w = image_bgr.shape[:2]
     scale = min(1.0, cfg.work_max_side_px / max(h, w))
-    work = cv2.resize(image_bgr, (round(w * scale), round(h * scale)),
-                      interpolation=cv2.INTER_AREA)
+    work = sheet_candidates.shrink(image_bgr, scale)
     found: list[Found] = []
     band = max(6.0, 3.0 / scale)
     quads_, pents = sheet_candidates.candidates(work, cfg)
@@ -195,6 +194,10 @@ def _accept(image_bgr: npt.NDArray[np.uint8], quad_full: Array, band: float, cfg
     if any(np.hypot(*(quad_full[:, None] - f[1][None]).T).min(axis=0).max() <= band
            for f in found):
         return  # another mask's outline of a sheet already found
+    if not _aspect_ok(quad_full, image_bgr.shape, cfg, K, 2.0 * cfg.aspect_tol):
+        return  # rough corners: a looser test here, the exact one after refinement
+    if _tile(image_bgr, quad_full, cfg):
+        return  # cheaper than refining it first
     refined = refine_quad(image_bgr, quad_full, band)
     if refined is not None and _passes(image_bgr, refined, cfg, K) and \
             all(np.abs(refined[0] - f[1]).max() > 4.0 for f in found):
@@ -214,6 +217,10 @@ def _accept_partial(image_bgr: npt.NDArray[np.uint8], pents: list[Array], band: 
         for hyp in sheet_partial.hypotheses(pent, cfg.min_seen):
             if sheet_candidates.touches_border(hyp.corners[:3], image_bgr.shape, band):
                 continue  # the three seen corners must be inside the image
+            if not _aspect_ok(hyp.corners, image_bgr.shape, cfg, K, 2.0 * cfg.aspect_tol):
+                continue  # rough corners: a looser test here, the exact one after refinement
+            if _tile(image_bgr, hyp.corners, cfg, hyp.seen_ends):
+                continue
             out = sheet_partial.refine(image_bgr, hyp, band)
             if out is None or not _passes(image_bgr, out[:5], cfg, K, hyp.seen_ends):
                 continue
@@ -238,17 +245,29 @@ def _passes(image_bgr: npt.NDArray[np.uint8], refined: Refined, cfg: SheetConfig
         return False  # four edges of different things (a table top, its legs, the floor)
     if not _one_colour(outside, cfg.max_outside_spread, 1.0):
         return False  # a sheet lies on one surface: wall between table legs, floor below
-    h, w = image_bgr.shape[:2]
-    aspect = lines.rectangle_aspect(corners, K, cfg.focal_frac * max(h, w),
-                                    np.array([(w - 1) / 2.0, (h - 1) / 2.0]))
-    if abs(aspect / cfg.model().aspect - 1.0) > cfg.aspect_tol:
+    if not _aspect_ok(corners, image_bgr.shape, cfg, K, cfg.aspect_tol):
         return False
+    return not _tile(image_bgr, corners, cfg, seen_ends)
+
+
+def _tile(image_bgr: npt.NDArray[np.uint8], corners: Array, cfg: SheetConfig,
+          seen_ends: Array | None = None) -> bool:
+    """Return True when the colour recovers beyond too many sides: a tile between grout."""
     ends = np.stack([corners, np.roll(corners, -1, axis=0)], axis=1)
     ends = ends if seen_ends is None else seen_ends
     side_px = float(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1).mean())
     ls = np.array([lines.line_through(a, b, corners.mean(axis=0)) for a, b in ends])
     ridges = sides.ridge_ratio(image_bgr, ls, ends, max(8.0, 0.08 * side_px))
-    return int((ridges > cfg.ridge_ratio).sum()) <= cfg.max_ridges  # not a tile between grout
+    return int((ridges > cfg.ridge_ratio).sum()) > cfg.max_ridges
+
+
+def _aspect_ok(corners: Array, shape: tuple[int, ...], cfg: SheetConfig, K: Array | None,
+               tol: float) -> bool:
+    """Return True when the rectangle imaged as ``corners`` has the sheet's aspect (+-tol)."""
+    h, w = shape[:2]
+    aspect = lines.rectangle_aspect(corners, K, cfg.focal_frac * max(h, w),
+                                    np.array([(w - 1) / 2.0, (h - 1) / 2.0]))
+    return abs(aspect / cfg.model().aspect - 1.0) <= tol
 
 
 def _one_colour(bgr: Array, max_spread: float, max_saturation: float) -> bool:
