@@ -46,16 +46,18 @@ class StepAck:
         return self._node.resolve_topic_name(topic)
 
 
-def run_node(node_cls: type, args: list[str] | None = None) -> None:
+def run_node(node_cls: type, args: list[str] | None = None, threads: int = 1) -> None:
     """
     The console-script ``main`` of every node (Jazzy style, see STYLE.md).
 
     An expected failure while starting (bad parameter value, missing file) is one line and
     exit 1; a node with a ``finished`` attribute (bag_replay, video_source on a file) ends
-    the process when it turns True.
+    the process when it turns True. ``threads`` > 1 spins a MultiThreadedExecutor, for nodes
+    whose slow work has a callback group of its own.
     """
     import rclpy
-    from rclpy.executors import ExternalShutdownException
+    from rclpy.executors import (ExternalShutdownException, MultiThreadedExecutor,
+                                 SingleThreadedExecutor)
 
     from absscale_ros.core.errors import AbsScaleError
     rclpy.init(args=args)
@@ -65,12 +67,16 @@ def run_node(node_cls: type, args: list[str] | None = None) -> None:
         print(f'{node_cls.__name__}: error: {err}')
         rclpy.try_shutdown()
         raise SystemExit(1)
+    executor = MultiThreadedExecutor(num_threads=threads) if threads > 1 \
+        else SingleThreadedExecutor()
+    executor.add_node(node)
     try:
         while rclpy.ok() and not getattr(node, 'finished', False):
-            rclpy.spin_once(node, timeout_sec=0.1)
+            executor.spin_once(timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
 

@@ -18,8 +18,6 @@ from absscale_ros import conversions
 from absscale_ros.core import calibration, errors, ingest, pairing
 from absscale_ros.nodes import common
 from diagnostic_msgs.msg import DiagnosticArray
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
@@ -146,12 +144,4 @@ class FrameIngestNode(Node):
 
 
 def main(args: list[str] | None = None) -> None:
-    rclpy.init(args=args)
-    node = FrameIngestNode()
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    common.run_node(FrameIngestNode, args)
