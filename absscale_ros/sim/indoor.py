@@ -16,6 +16,10 @@ WOOD = Material('parquet', (0.9, 0.85, 0.8), 0.0012)
 BOOKS = Material('books', (1.0, 1.0, 1.0), 0.0018)
 CARDBOARD = Material('cardboard', (1.0, 1.0, 1.0), 0.0008)
 MUG = Material('paint', (0.25, 0.45, 0.7), 0.0005)
+FLOOR_DECALS = [Material('carpet', (0.9, 0.75, 0.6), 0.0008),
+                Material('cardboard', (1.0, 1.0, 1.0), 0.0006),
+                Material('wood_dark', (0.9, 0.9, 0.9), 0.001),
+                Material('tiles', (0.6, 0.6, 0.65), 0.0004)]
 
 
 def build(seed: int, variant: dict[str, object], rng: np.random.Generator) -> Scene:
@@ -62,6 +66,10 @@ def build(seed: int, variant: dict[str, object], rng: np.random.Generator) -> Sc
         toward = (centre - corner) / np.linalg.norm(centre - corner)
         pos = corner + 0.03 * toward + np.array([0.0, 0.0, 0.055])
         b.box(pos, [0.085, 0.085, 0.11], rng.uniform(0, np.pi), MUG, label='occluding mug')
+    # Rugs, mats, dropped cardboard: unique structure on the floor (its pattern repeats).
+    # Just above the floor, below a sheet or card lying on it (0.3 mm, 0.6 mm).
+    b.decals(rng, 25, np.array([lx / 2, ly / 2]), 0.5 * min(lx, ly), 0.0002, FLOOR_DECALS,
+             [(centre[:2], 0.7)])
     near = rng.uniform(0.75, 1.1)
     b.walk = {'target_x': centre[0], 'target_y': centre[1], 'target_z': centre[2],
               'approach_rad': -np.pi / 2 + rng.uniform(-0.3, 0.3),

@@ -13,6 +13,12 @@ GROUNDS = [Material('pavers', (1.0, 1.0, 1.0), 0.0025),
            Material('asphalt', (1.0, 1.0, 1.0), 0.002),
            Material('concrete', (0.95, 0.95, 0.95), 0.003)]
 WINDOW = Material('window', (1.0, 1.0, 1.0), 0.004)
+# Oil stains, repaired patches, litter, faded markings: unique features on a repetitive plaza.
+DECALS = [Material('asphalt', (0.7, 0.7, 0.7), 0.0015),
+          Material('concrete', (0.8, 0.78, 0.75), 0.001),
+          Material('cardboard', (0.9, 0.85, 0.8), 0.0008),
+          Material('paint', (0.55, 0.55, 0.52), 0.002),
+          Material('grass', (0.8, 0.8, 0.8), 0.002)]
 NEUTRAL_PAINTS = [(0.3, 0.4, 0.65), (0.55, 0.55, 0.57), (0.3, 0.3, 0.32), (0.85, 0.86, 0.88),
                   (0.25, 0.5, 0.4)]
 
@@ -57,6 +63,7 @@ def build(seed: int, variant: dict[str, object], rng: np.random.Generator) -> Sc
         b.box([pos[0], pos[1], 0.8], [0.3, 0.3, 1.6], az,
               Material('concrete', (0.8, 0.8, 0.8), 0.002), label='occluding post')
     sun_az, sun_el = rng.uniform(0.0, 2.0 * np.pi), np.deg2rad(rng.uniform(25.0, 60.0))
+    b.decals(rng, 45, np.zeros(2), min(half, 20.0), 0.002, DECALS, [(np.zeros(2), 1.2)])
     light = np.array([np.cos(sun_az) * np.cos(sun_el), np.sin(sun_az) * np.cos(sun_el),
                       np.sin(sun_el)])
     return b.build('outdoor_cube', seed, variant, light, 0.35, 0.85, outdoor=True)

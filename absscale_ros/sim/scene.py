@@ -149,6 +149,33 @@ class SceneBuilder:
             self.obstacles.append(np.stack([corners.min(axis=0), corners.max(axis=0)]))
         return corners
 
+    def decals(self, rng: np.random.Generator, count: int, centre_xy_m: FloatArray,
+               radius_m: float, z_m: float, mats: list[Material],
+               keep_out: list[tuple[FloatArray, float]]) -> None:
+        """
+        Flat patches lying on a floor at height ``z_m`` (stains, litter, markings, rugs).
+
+        Textures repeat every few metres; these patches sit at random places with random
+        content, so feature matching sees unique structure all over the floor.
+
+        :param keep_out: (centre_xy, radius) discs left free (the target and its support).
+        """
+        for _ in range(count):
+            for _ in range(20):
+                r = radius_m * np.sqrt(rng.uniform(0.02, 1.0))
+                az = rng.uniform(0.0, 2.0 * np.pi)
+                xy = np.asarray(centre_xy_m, float) + r * np.array([np.cos(az), np.sin(az)])
+                if all(np.linalg.norm(xy - c) > rad for c, rad in keep_out):
+                    break
+            w, h = rng.uniform(0.08, 0.7, size=2)
+            yaw = rng.uniform(0.0, np.pi)
+            c, s = np.cos(yaw), np.sin(yaw)
+            local = np.array([[-w, -h], [w, -h], [w, h], [-w, h]]) * 0.5 @ np.array(
+                [[c, s], [-s, c]])
+            corners = np.column_stack([xy + local, np.full(4, z_m)])
+            self.face(corners, mats[int(rng.integers(len(mats)))],
+                      toward_m=[xy[0], xy[1], z_m + 1.0])
+
     def pair(self, a_m: FloatArray, b_m: FloatArray, label: str, kind: str) -> None:
         """Record two world points and their true distance."""
         a, b = np.asarray(a_m, float), np.asarray(b_m, float)
