@@ -4,7 +4,7 @@ import numpy as np
 from absscale_ros.sim import indoor, outdoor
 from absscale_ros.sim.scene import Scene
 
-SIM_VERSION = 1  # bump when the same name + seed + variant renders differently
+SIM_VERSION = 2  # bump when the same name + seed + variant renders differently
 SCENES = ('indoor_paper', 'outdoor_cube')
 _INDOOR_TARGETS = (('letter', 'desk'), ('a4', 'desk'), ('letter', 'floor'),
                    ('letter', 'light_desk'))
