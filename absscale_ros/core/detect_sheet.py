@@ -53,6 +53,8 @@ class SheetConfig:
         unsaturated; a shaded sheet or a warm light stays well below this).
     :param max_outside_spread: the same spread test just outside the sides (the surface the
         sheet lies on), looser: shadows and a second surface at one side are common.
+    :param rough_aspect_tol: the aspect test on rough mask corners, before refinement (wide:
+        a small sheet seen obliquely has rough corners a few px off on 40 px sides).
     :param max_ridges: most sides whose colour recovers beyond a thin dark line
         (``sides.ridge_ratio`` above ``ridge_ratio``): four are a floor tile between grout.
     :param ridge_ratio: ``sides.ridge_ratio`` above which a side is such a line.
@@ -79,6 +81,7 @@ class SheetConfig:
     max_inside_spread: float = 0.25
     max_saturation: float = 0.35
     max_outside_spread: float = 0.5
+    rough_aspect_tol: float = 0.8
     max_ridges: int = 1
     ridge_ratio: float = 0.3
     min_seen: float = 0.4
@@ -194,7 +197,7 @@ def _accept(image_bgr: npt.NDArray[np.uint8], quad_full: Array, band: float, cfg
     if any(np.hypot(*(quad_full[:, None] - f[1][None]).T).min(axis=0).max() <= band
            for f in found):
         return  # another mask's outline of a sheet already found
-    if not _aspect_ok(quad_full, image_bgr.shape, cfg, K, 2.0 * cfg.aspect_tol):
+    if not _aspect_ok(quad_full, image_bgr.shape, cfg, K, cfg.rough_aspect_tol):
         return  # rough corners: a looser test here, the exact one after refinement
     if _tile(image_bgr, quad_full, cfg):
         return  # cheaper than refining it first
@@ -217,7 +220,7 @@ def _accept_partial(image_bgr: npt.NDArray[np.uint8], pents: list[Array], band: 
         for hyp in sheet_partial.hypotheses(pent, cfg.min_seen):
             if sheet_candidates.touches_border(hyp.corners[:3], image_bgr.shape, band):
                 continue  # the three seen corners must be inside the image
-            if not _aspect_ok(hyp.corners, image_bgr.shape, cfg, K, 2.0 * cfg.aspect_tol):
+            if not _aspect_ok(hyp.corners, image_bgr.shape, cfg, K, cfg.rough_aspect_tol):
                 continue  # rough corners: a looser test here, the exact one after refinement
             if _tile(image_bgr, hyp.corners, cfg, hyp.seen_ends):
                 continue
