@@ -33,7 +33,7 @@ class SfmConfig:
     vertex_cfg: vm.VertexMatchConfig = field(default_factory=vm.VertexMatchConfig)
     match_window: int = 3  # match each new keyframe against this many previous ones
     relocalise_window: int = 30  # keyframes tried when the recent ones do not register it
-    min_pnp_inliers: int = 50  # fewer: a weak link that lets the scale jump (start a segment)
+    min_pnp_inliers: int = 30
     pnp_px: float = 2.0  # PnP RANSAC reprojection threshold, px
     max_pending: int = 6  # keyframes kept while waiting for a well-conditioned initial pair
     max_failures: int = 2  # consecutive unregistrable keyframes (dropped) before a new segment
@@ -192,6 +192,8 @@ class IncrementalSfm:
                                   self.cfg.twoview_cfg, self.cfg.vertex_cfg)
                 seg.graph.update(seg.map)
                 return status, f'{len(inliers)} PnP inliers, {added} new landmarks'
+        if len(seg.map.keyframes) == 2:
+            return self._restart(seg, kf)
         self._failures += 1
         if self._failures < self.cfg.max_failures:
             return 'rejected', (f'keyframe {kf.kf_id} could not be registered or relocalised: '
@@ -201,6 +203,22 @@ class IncrementalSfm:
         self.current.pending.append(kf)
         return 'new_segment', (f'keyframe {kf.kf_id} could not be registered or relocalised: '
                                f'segment {len(self.segments) - 1} kept, new segment started')
+
+    def _restart(self, seg: Segment, kf: sfm_map.MapKeyframe) -> tuple[str, str]:
+        """
+        The keyframe after an initial pair does not register: the pair is too weak to carry a
+        map (kept, it hangs on by few points at its own scale), so start again from its newer
+        keyframe and ``kf``.
+        """
+        newer = seg.map.keyframes[max(seg.map.keyframes)]
+        newer.T_world_cam, newer.landmark_of[:] = np.eye(4), -1
+        if newer.vertices is not None:
+            newer.vertices.landmark_of[:] = -1
+        fresh = self._new_segment()
+        fresh.pending = [newer]
+        self.segments[-1] = fresh
+        status, msg = self._try_initialise(fresh, kf)
+        return status, f'initial pair dropped ({kf.kf_id} did not register on it); {msg}'
 
     def _match_neighbours(self, neighbours: list[sfm_map.MapKeyframe],
                           kf: sfm_map.MapKeyframe) -> dict[int, npt.NDArray[np.int64]]:
