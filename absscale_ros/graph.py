@@ -7,7 +7,13 @@ the graph has drained the last frame.
 """
 from dataclasses import dataclass
 import importlib
+import json
 import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import tempfile
 import time
 from typing import Any, Callable
 
@@ -57,6 +63,7 @@ class RunOptions:
     domain_id: int | None = None  # None: a private one from the process id
     record: str | None = None  # MCAP file for every graph topic (not the bag's own)
     drain_s: float = 0.3
+    processes: bool = False  # each pipeline node in its own process, over real DDS
 
 
 def available_nodes() -> list[tuple[str, type]]:
@@ -100,16 +107,24 @@ def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
     rclpy.init(context=context, args=[], domain_id=1 + os.getpid() % 100
                if options.domain_id is None else options.domain_id)
     nodes: dict[str, Node] = {}
-    monitor = executor = None
+    monitor = executor = children = None
     try:
-        nodes = _start_nodes(context, sections, options.live)
+        if options.processes:
+            children = _NodeProcesses(config_path, context.get_domain_id(), options.live)
+        else:
+            nodes = _start_nodes(context, sections, options.live)
         monitor = GraphMonitorNode(context=context)
         monitor.discover()  # the pipeline's topics exist now: count them from the first message
         if options.record:
             monitor.record(options.record)
         replay_params = params.node_params(sections, 'bag_replay')
-        replay_params.update(bag=str(bag), expect_nodes=','.join(nodes), mode=options.mode,
+        names = children.names if children is not None else list(nodes)
+        replay_params.update(bag=str(bag), expect_nodes=','.join(names), mode=options.mode,
                              rate=options.rate)
+        if children is not None:  # discovery across processes takes longer than in one
+            replay_params['startup_timeout_s'] = max(30.0, replay_params.get(
+                'startup_timeout_s', 5.0))
+            replay_params['settle_s'] = 2.0
         if options.live:
             replay_params.update(mode='rate', qos='sensor_data')
         replay = BagReplayNode(context=context, parameter_overrides=_overrides(replay_params))
@@ -120,12 +135,14 @@ def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
         for node in [*nodes.values(), monitor, replay]:
             executor.add_node(node)
         wall_s = _spin(executor, replay, monitor, nodes, options, on_progress)
+        node_reports = children.stop() if children is not None else \
+            {name: _node_report(node) for name, node in nodes.items()}
         report = {
             'bag': str(bag), 'config': str(config_path), 'wall_time_s': round(wall_s, 3),
             'replay': {'mode': replay_params['mode'], 'live': options.live,
                        'published': replay.published, 'total': replay.total,
                        'steps': replay.steps, 'step_timeouts': replay.timeouts},
-            'nodes': {name: _node_report(node) for name, node in nodes.items()},
+            'nodes': node_reports,
             **monitor.report(),
             'latency_s': _latency(replay.published_at, monitor.cloud_updates),
             'detections': list(monitor.detections),
@@ -133,6 +150,8 @@ def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
         }
         return report
     finally:
+        if children is not None:
+            children.stop()
         if executor is not None:
             executor.shutdown(timeout_sec=5.0)  # worker threads stop before the nodes go
         if monitor is not None:
@@ -140,6 +159,49 @@ def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
         for node in nodes.values():
             node.destroy_node()
         rclpy.try_shutdown(context=context)
+
+
+class _NodeProcesses:
+    """The pipeline nodes as separate processes on the runner's DDS domain (``--processes``)."""
+
+    def __init__(self, config_path: Path, domain_id: int, live: bool) -> None:
+        self._dir = tempfile.TemporaryDirectory(prefix='absscale_nodes_')
+        env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
+        found = dict(available_nodes())
+        self.names = list(found)
+        self._procs: dict[str, subprocess.Popen] = {}
+        for name, cls in found.items():
+            args = ['--ros-args', '--params-file', str(config_path)]
+            if name == 'keyframe_selector' and 'vertex_detector' not in found:
+                args += ['-p', 'use_vertices:=false']
+            if live:
+                args += ['-p', 'qos:=sensor_data']
+            code = f'from {cls.__module__} import main; main()'
+            self._procs[name] = subprocess.Popen(
+                [sys.executable, '-c', code, *args],
+                env=dict(env, ABSSCALE_REPORT=str(Path(self._dir.name) / f'{name}.json')),
+                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        self._reports: dict[str, Any] | None = None
+
+    def stop(self) -> dict[str, Any]:
+        """Interrupt every node (they write their reports) and collect the reports."""
+        if self._reports is not None:
+            return self._reports
+        for proc in self._procs.values():
+            proc.send_signal(signal.SIGINT)
+        reports: dict[str, Any] = {}
+        for name, proc in self._procs.items():
+            try:
+                _, err = proc.communicate(timeout=30)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                _, err = proc.communicate()
+            path = Path(self._dir.name) / f'{name}.json'
+            reports[name] = json.loads(path.read_text()) if path.exists() else {
+                'error': f'exit {proc.returncode}: {err.decode(errors="replace")[-500:]}'}
+        self._dir.cleanup()
+        self._reports = reports
+        return reports
 
 
 def _spin(executor: Any, replay: BagReplayNode, monitor: GraphMonitorNode,

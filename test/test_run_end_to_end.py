@@ -30,3 +30,31 @@ def test_run_writes_report_picture_and_recording(tmp_path: Path) -> None:
         topics = reader.topics
     assert topics['/absscale/frames'].count == 12
     assert '/camera/image_raw/compressed' not in topics  # the bag's own topics are not re-recorded
+
+
+def _deterministic(report: dict) -> dict:
+    """What must not depend on scheduling: counts, keyframe stamps, the scale verdict."""
+    nodes = report['nodes']
+    return {'topics': {t: n for t, n in report['messages_per_topic'].items()
+                       if t != '/diagnostics'},
+            'keyframes': nodes['keyframe_selector']['keyframe_stamps_ns'],
+            'decoded': nodes['frame_ingest']['frames_decoded'],
+            'sfm_keyframes': nodes['sfm']['keyframes_in'],
+            'scale': nodes['scale']}
+
+
+def test_processes_give_the_same_result_as_one_process(tmp_path: Path) -> None:
+    """--processes: every node its own process, over real DDS on loopback."""
+    bag = tmp_path / 'cam.mcap'
+    write_camera_bag(bag, frames=10, size=(640, 360))
+    reports = []
+    for extra in ([], ['--processes']):
+        out = tmp_path / ('procs' if extra else 'one')
+        done = subprocess.run([sys.executable, '-m', 'absscale_ros.cli', 'run', str(bag),
+                               '--out', str(out), '--quiet', *extra],
+                              capture_output=True, text=True, timeout=300)
+        assert done.returncode == 1 and 'Traceback' not in done.stderr, done.stderr[-3000:]
+        reports.append(json.loads((out / 'report.json').read_text()))
+    one, procs = reports
+    assert procs['replay']['step_timeouts'] == 0
+    assert _deterministic(procs) == _deterministic(one)

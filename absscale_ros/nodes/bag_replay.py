@@ -28,7 +28,7 @@ class BagReplayNode(Node):
             ('bag', ''), ('mode', 'rate'), ('rate', 1.0), ('topics', ''), ('remap', ''),
             ('start_offset_s', 0.0), ('loop', False), ('step_topics', ''),
             ('step_timeout_s', 10.0), ('expect_nodes', ''), ('qos', 'reliable'),
-            ('progress_period_s', 5.0), ('startup_timeout_s', 5.0)])
+            ('progress_period_s', 5.0), ('startup_timeout_s', 5.0), ('settle_s', 0.0)])
         self._p = {x.name: x.value for x in p}
         if self._p['mode'] not in ('rate', 'fast', 'step'):
             raise ValueError(f"mode must be rate, fast or step, not {self._p['mode']!r}")
@@ -47,6 +47,7 @@ class BagReplayNode(Node):
         self.published = self.steps = self.timeouts = 0
         self.finished = False
         self.published_at: dict[int, int] = {}  # frame stamp -> monotonic ns it went out
+        self._known_since: float | None = None
         self._cursor: bagio.ReplayCursor | None = None
         self._step_started = self._last_progress = self._created = time.monotonic()
         self._create_ack_sub()
@@ -91,7 +92,11 @@ class BagReplayNode(Node):
         missing = set(_csv(self._p['expect_nodes'])) - ackers
         unheard = [t for t, pub in self._pubs.items() if pub.get_subscription_count() == 0]
         if not missing and not unheard and self._graph_known():
-            return True
+            # Across processes a publisher may be matched to its subscribers a moment after
+            # discovery names them; a message sent before would be lost.
+            if self._known_since is None:
+                self._known_since = time.monotonic()
+            return time.monotonic() - self._known_since >= self._p['settle_s']
         if time.monotonic() - self._created < self._p['startup_timeout_s']:
             return False
         self.get_logger().warning(f'starting without nodes {sorted(missing)} and with no '

@@ -77,8 +77,19 @@ def run_node(node_cls: type, args: list[str] | None = None, threads: int = 1) ->
         pass
     finally:
         executor.shutdown()
+        _write_report(node)
         node.destroy_node()
         rclpy.try_shutdown()
+
+
+def _write_report(node: Any) -> None:
+    """With ABSSCALE_REPORT set (``absscale run --processes``), leave ``report()`` there."""
+    import json
+    import os
+    path = os.environ.get('ABSSCALE_REPORT')
+    if path and callable(getattr(node, 'report', None)):
+        with open(path, 'w') as f:
+            json.dump(node.report(), f, default=str)
 
 
 def declare_config(node: Node, cfg: Any, prefix: str = '') -> Any:

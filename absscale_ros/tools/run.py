@@ -26,6 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='record every /absscale topic, /scaled_cloud and /diagnostics')
     parser.add_argument('--live', action='store_true',
                         help='replay at bag rate into sensor-data QoS; nodes drop when behind')
+    parser.add_argument('--processes', action='store_true',
+                        help='each node in its own process, talking over DDS on loopback')
     parser.add_argument('--quiet', action='store_true', help='no progress bar')
 
 
@@ -48,7 +50,8 @@ def run(args: argparse.Namespace) -> int:
     show = None if args.quiet or not sys.stderr.isatty() else (
         lambda p: print(_progress_line(p), end='', file=sys.stderr, flush=True))
     options = graph.RunOptions(mode=args.mode, rate=args.rate, live=args.live,
-                               domain_id=args.domain_id, record=args.record)
+                               domain_id=args.domain_id, record=args.record,
+                               processes=args.processes)
     report = graph.run_graph(args.bag, args.config, options, on_progress=show)
     if show is not None:
         print(file=sys.stderr)
