@@ -43,7 +43,6 @@ def measure(bag: str, report: dict[str, Any], msgs: dict[str, Any], gt: dict[str
     """
     from absscale_ros import conversions
     from absscale_ros.core import evaluation
-    from absscale_ros.sim import groundtruth
     scene = str(gt['scene']['name'])
     scale_report = report['nodes'].get('scale', {})
     result: dict[str, Any] = {'bag': bag, 'scene': scene, 'observable':
@@ -62,36 +61,50 @@ def measure(bag: str, report: dict[str, Any], msgs: dict[str, Any], gt: dict[str
                   scale_error_mm_per_m=1000.0 * (factor / truth_factor - 1.0),
                   claimed_sigma_mm_per_m=1000.0 * sigma / factor)
     if lengths and '/scaled_cloud' in msgs and '/absscale/scaled_path' in msgs:
-        cloud = conversions.cloud_msg_to_array(msgs['/scaled_cloud'], skip_nans=True)
-        pts = np.stack([cloud[a] for a in 'xyz'], axis=1).astype(np.float64)
-        metric_poses, _ = conversions.path_msg_to_poses(msgs['/absscale/scaled_path'])
-        camera = groundtruth.camera_from_json(gt['camera'])  # type: ignore[arg-type]
-        truth = evaluation.landmark_truth(
-            pts, metric_poses, idx, camera,
-            lambda k, px: groundtruth.points_behind_pixels(gt, k, px))
-        stats = evaluation.length_errors(pts, truth, np.random.default_rng(0))
-        result.update(landmarks=len(pts), landmarks_with_truth=int(np.isfinite(truth[:, 0])
-                                                                   .sum()),
-                      lengths=stats.__dict__)
+        try:
+            result.update(_lengths(gt, msgs, idx))
+        except ValueError as err:  # e.g. gt.json from another renderer version
+            result['lengths_error'] = str(err)
     return result
 
 
+def _lengths(gt: dict[str, Any], msgs: dict[str, Any], idx: list[int]) -> dict[str, Any]:
+    """Table 3 figures of one run's metric landmarks (see ``core/evaluation.py``)."""
+    from absscale_ros import conversions
+    from absscale_ros.core import evaluation
+    from absscale_ros.sim import groundtruth
+    cloud = conversions.cloud_msg_to_array(msgs['/scaled_cloud'], skip_nans=True)
+    pts = np.stack([cloud[a] for a in 'xyz'], axis=1).astype(np.float64)
+    metric_poses, _ = conversions.path_msg_to_poses(msgs['/absscale/scaled_path'])
+    camera = groundtruth.camera_from_json(gt['camera'])  # type: ignore[arg-type]
+    truth = evaluation.landmark_truth(
+        pts, metric_poses, idx, camera,
+        lambda k, px: groundtruth.points_behind_pixels(gt, k, px))
+    stats = evaluation.length_errors(pts, truth, np.random.default_rng(0))
+    return {'landmarks': len(pts),
+            'landmarks_with_truth': int(np.isfinite(truth[:, 0]).sum()),
+            'lengths': stats.__dict__}
+
+
 def run(args: argparse.Namespace) -> int:
-    rows = [evaluate_bag(bag, args.config) for bag in args.bags]
-    if args.json:
-        for row in rows:
-            print(json.dumps(row))
-        return 0
-    print(f'{"bag":<28} {"scale err mm/m":>14} {"claimed sigma":>13} {"n":>5} {"mean":>6} '
-          f'{"max":>6} {"std":>6}')
-    for r in rows:
+    if not args.json:
+        print(f'{"bag":<28} {"scale err mm/m":>14} {"claimed sigma":>13} {"n":>5} {"mean":>6} '
+              f'{"max":>6} {"std":>6}', flush=True)
+    for bag in args.bags:
+        r = evaluate_bag(bag, args.config)
+        if args.json:
+            print(json.dumps(r), flush=True)
+            continue
         if not r['observable']:
             print(f'{Path(r["bag"]).name:<28} no scale: {r["reason"]}')
             continue
         lengths = r.get('lengths', {'count': 0, 'mean': np.nan, 'max': np.nan, 'std': np.nan})
         print(f'{Path(r["bag"]).name:<28} {r["scale_error_mm_per_m"]:>14.2f} '
               f'{r["claimed_sigma_mm_per_m"]:>13.2f} {lengths["count"]:>5} '
-              f'{lengths["mean"]:>6.2f} {lengths["max"]:>6.2f} {lengths["std"]:>6.2f}')
+              f'{lengths["mean"]:>6.2f} {lengths["max"]:>6.2f} {lengths["std"]:>6.2f}',
+              flush=True)
+    if args.json:
+        return 0
     for kind, (n, mean, mx, std) in PAPER_TABLE3.items():
         print(f'{"paper, " + kind:<28} {"":>14} {"":>13} {n:>5} {mean:>6.1f} {mx:>6.1f} '
               f'{std:>6.1f}')
