@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import importlib
 import json
 import os
+import resource
 from pathlib import Path
 import signal
 import subprocess
@@ -145,6 +146,8 @@ def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
             'nodes': node_reports,
             **monitor.report(),
             'latency_s': _latency(replay.published_at, monitor.cloud_updates),
+            # ru_maxrss is in KiB on Linux; with --processes this is the runner alone.
+            'peak_rss_mb': round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
             'detections': list(monitor.detections),
             '_latest': dict(monitor.latest),  # popped by the caller that writes files
         }
