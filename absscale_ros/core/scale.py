@@ -106,6 +106,8 @@ def assign_to_model(points: FloatArray, model_m: FloatArray,
     :raises DegenerateGeometryError: if the best assignment misfits or is ambiguous.
     """
     n = len(points)
+    if n > len(model_m):  # e.g. one corner reconstructed twice
+        raise DegenerateGeometryError(f'{n} vertices for a target that has {len(model_m)}')
     pi, pj = _pair_index(n)
     d = np.linalg.norm(points[pi] - points[pj], axis=1)
     if np.any(d <= 0.0) or not np.all(np.isfinite(d)):

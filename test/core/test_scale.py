@@ -117,3 +117,16 @@ def test_drift_term_widens_sigma_and_interval() -> None:
     assert wide.sigma == pytest.approx(np.hypot(local.sigma, 0.003 * local.factor))
     assert wide.interval[1] - wide.interval[0] > local.interval[1] - local.interval[0]
     assert wide.interval[1] - wide.factor >= 1.96 * 0.003 * wide.factor
+
+
+def test_a_vertex_reconstructed_twice_is_left_out_not_a_crash() -> None:
+    rng = np.random.default_rng(9)
+    obj = _reconstructed('sheet', LETTER, 0.5, 0.0002, rng, order=[0, 1, 2, 3])
+    pts = np.vstack([obj.points, obj.points[1] + 0.01])  # a fifth "corner" next to one
+    twice = scale.ObjectVertices('sheet', LETTER, pts, np.full(5, 5), np.full(5, 10.0))
+    est = scale.estimate([twice], CFG)
+    assert est.factor == pytest.approx(0.5, rel=0.005)
+    six = scale.ObjectVertices('sheet', LETTER, np.vstack([pts, pts[0] + 0.02]),
+                               np.full(6, 5), np.full(6, 10.0))
+    with pytest.raises(NotObservableError, match='fits the target'):
+        scale.estimate([six], CFG)
