@@ -24,6 +24,7 @@ FloatArray = npt.NDArray[np.float64]
 class ScaleConfig:
     """Thresholds of the scale stage (all in the config YAML of the scale node)."""
 
+    min_keyframes: int = 8  # a reconstruction of fewer keyframes is too weak to scale from
     min_vertices: int = 3  # per object: fewer leave the model assignment ambiguous
     min_observations: int = 3  # keyframes that saw a vertex before it counts
     min_angle_deg: float = 3.0  # widest triangulation angle of a vertex before it counts
@@ -249,13 +250,20 @@ def _which_model(points: FloatArray, obj: ObjectVertices, cfg: ScaleConfig) -> F
     return model_vertices_m(obj.kind, sizes[order[0]])
 
 
-def estimate(objects: list[ObjectVertices], cfg: ScaleConfig) -> ScaleEstimate:
+def estimate(objects: list[ObjectVertices], cfg: ScaleConfig,
+             keyframes: int | None = None) -> ScaleEstimate:
     """
     Pool every usable object into one metric scale with its uncertainty.
+
+    :param keyframes: keyframes in the reconstruction the vertices belong to (None: unknown,
+        not checked).
 
     :raises NotObservableError: when no object passes the gate, or the factor is too
         uncertain; the message says why.
     """
+    if keyframes is not None and keyframes < cfg.min_keyframes:
+        raise NotObservableError(f'the reconstruction holds {keyframes} keyframes < '
+                                 f'{cfg.min_keyframes}')
     measured, true_m, rejected = [], [], []
     for obj in objects:
         keep = _usable(obj.n_obs, obj.angles_deg, cfg)

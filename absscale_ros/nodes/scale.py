@@ -67,7 +67,9 @@ class ScaleNode(Node):
             if len(pts) else []
         outputs: list[str] = []
         try:
-            est = scale.estimate(objects, self._cfg)
+            keyframes = None if self._path is None else \
+                len(conversions.path_msg_to_poses(self._path)[1])
+            est = scale.estimate(objects, self._cfg, keyframes)
         except AbsScaleError as err:
             self._why_not = str(err)
             self.get_logger().info(f'no metric scale yet: {err}', throttle_duration_sec=10.0)

@@ -10,7 +10,7 @@ SAMPLES = {'indoor_paper': 'indoor_paper_sample.mcap', 'outdoor_cube': 'outdoor_
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument('--scene', choices=sorted(SAMPLES), default='indoor_paper',
+    parser.add_argument('--scene', choices=sorted(SAMPLES), default='outdoor_cube',
                         help='which sample bag to run')
     parser.add_argument('--out', default='out/demo', help='output folder')
 

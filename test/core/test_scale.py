@@ -130,3 +130,11 @@ def test_a_vertex_reconstructed_twice_is_left_out_not_a_crash() -> None:
                                np.full(6, 5), np.full(6, 10.0))
     with pytest.raises(NotObservableError, match='fits the target'):
         scale.estimate([six], CFG)
+
+
+def test_too_few_keyframes_claim_nothing() -> None:
+    rng = np.random.default_rng(10)
+    obj = _reconstructed('sheet', LETTER, 1.0, 0.0, rng)
+    with pytest.raises(NotObservableError, match='keyframes'):
+        scale.estimate([obj], CFG, keyframes=5)
+    assert scale.estimate([obj], CFG, keyframes=12).factor == pytest.approx(1.0)
