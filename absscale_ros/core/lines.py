@@ -45,22 +45,29 @@ def nearest_point(lines: Array) -> Array:
     return np.asarray(sol, dtype=np.float64)
 
 
-def rough_quad(contour: npt.NDArray[np.int32]) -> Array | None:
+def rough_polygon(contour: npt.NDArray[np.int32], corners: int,
+                  fracs: tuple[float, ...] = (0.01, 0.02, 0.03, 0.05, 0.08)) -> Array | None:
     """
-    Return a (4, 2) quadrilateral approximating a convex-ish contour, or None.
+    Return a (corners, 2) polygon approximating a convex-ish contour, or None.
 
-    The convex hull is simplified with a growing tolerance until four vertices remain, so
-    small notches (a pen on the sheet, a blurred corner) do not add vertices.
+    The convex hull is simplified with a growing tolerance (fractions of its perimeter) until
+    ``corners`` vertices remain, so small notches (a pen on the sheet, a blurred corner) do not
+    add vertices.
     """
     hull = cv2.convexHull(contour)
     perim = cv2.arcLength(hull, True)
-    for frac in (0.01, 0.02, 0.03, 0.05, 0.08):
+    for frac in fracs:
         approx = cv2.approxPolyDP(hull, frac * perim, True)
-        if len(approx) == 4:
-            return np.asarray(approx.reshape(4, 2), dtype=np.float64)
-        if len(approx) < 4:
+        if len(approx) == corners:
+            return np.asarray(approx.reshape(corners, 2), dtype=np.float64)
+        if len(approx) < corners:
             return None
     return None
+
+
+def rough_quad(contour: npt.NDArray[np.int32]) -> Array | None:
+    """Return a (4, 2) quadrilateral approximating a convex-ish contour, or None."""
+    return rough_polygon(contour, 4)
 
 
 def hough_line(points_px: Array, theta0_rad: float, rho0_px: float, theta_res_deg: float = 2.0,

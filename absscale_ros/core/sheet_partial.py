@@ -37,14 +37,7 @@ class Partial:
 
 def pentagon(contour: npt.NDArray[np.int32]) -> Array | None:
     """Return the (5, 2) simplified convex hull of a contour when it has five vertices."""
-    hull = cv2.convexHull(contour)
-    perim = cv2.arcLength(hull, True)
-    for frac in (0.01, 0.02, 0.03):
-        approx = cv2.approxPolyDP(hull, frac * perim, True)
-        if len(approx) == 5:
-            return np.asarray(approx.reshape(5, 2), dtype=np.float64)
-        if len(approx) < 5:
-            return None
+    return lines.rough_polygon(contour, 5, (0.01, 0.02, 0.03))
     return None
 
 
