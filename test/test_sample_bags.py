@@ -1,4 +1,4 @@
-"""The shipped outdoor sample end to end: a metric scale inside its own interval, twice the same."""
+"""The shipped outdoor sample end to end: a true scale in its own interval, twice the same."""
 from pathlib import Path
 
 from absscale_ros import graph
