@@ -102,10 +102,20 @@ def _top_view(ax: Any, cloud_m: Any, colors: Any, trajectory_m: Any) -> None:
         ax.plot(trajectory_m[:, 0], trajectory_m[:, 1], 'r.-', lw=1, label='keyframes')
         ax.legend(loc='upper right')
     lo, hi = np.percentile(cloud_m[:, :2], [1, 99], axis=0)
-    ax.set_xlim(lo[0] - 0.5, hi[0] + 0.5)
-    ax.set_ylim(lo[1] - 0.5, hi[1] + 0.5)
-    ax.set_xticks(np.arange(np.floor(lo[0]), np.ceil(hi[0]) + 1))
-    ax.set_yticks(np.arange(np.floor(lo[1]), np.ceil(hi[1]) + 1))
-    ax.grid(True, lw=0.5)
+    if trajectory_m is not None and len(trajectory_m):  # the whole walk stays in view
+        lo = np.minimum(lo, trajectory_m[:, :2].min(axis=0))
+        hi = np.maximum(hi, trajectory_m[:, :2].max(axis=0))
+    lo, hi = lo - 0.5, hi + 0.5
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
+    # Grid lines every metre; labels at a step that stays readable on a 40 m scene.
+    label_step = max(1, int(np.ceil(max(hi - lo) / 10.0)))
+    for axis, a, b in ((ax.xaxis, lo[0], hi[0]), (ax.yaxis, lo[1], hi[1])):
+        axis.set_ticks(np.arange(np.floor(a), np.ceil(b) + 1), minor=True)
+        first = label_step * np.floor(a / label_step)
+        axis.set_ticks(np.arange(first, np.ceil(b) + label_step, label_step))
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
+    ax.grid(True, which='both', lw=0.4)
     ax.set_xlabel('x, m')
     ax.set_ylabel('y, m')
