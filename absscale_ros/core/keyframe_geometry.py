@@ -35,6 +35,9 @@ class Motion:
     :param degenerate: True when a pure rotation explains the pairs as well (no baseline).
     :param baseline_ratio: baseline / median depth of the triangulated inliers in view 0
         (scale-free); NaN when degenerate or too few points triangulate.
+    :param depths: (N,) depth in view 0 of each input pair in units of the baseline, NaN
+        where it is not one of the points ``baseline_ratio`` is the median over (None when
+        degenerate).
     """
 
     inliers: int
@@ -43,6 +46,7 @@ class Motion:
     parallax: float
     degenerate: bool
     baseline_ratio: float
+    depths: FloatArray | None = None
 
 
 def gric(residuals_sq: FloatArray, sigma_sq: float, manifold_dim: int, params: int) -> float:
@@ -113,6 +117,19 @@ def baseline_ratio(R: FloatArray, t: FloatArray, xy0: FloatArray, xy1: FloatArra
     :param R: (3, 3) R_1_0; :param t: (3,) unit translation, view 1 from view 0.
     :returns: 1 / median positive depth in view 0, or NaN when fewer than 5 points lie in front.
     """
+    z0 = unit_baseline_depths(R, t, xy0, xy1)
+    return float(1.0 / np.nanmedian(z0)) if np.any(np.isfinite(z0)) else float('nan')
+
+
+def unit_baseline_depths(R: FloatArray, t: FloatArray, xy0: FloatArray,
+                         xy1: FloatArray) -> FloatArray:
+    """
+    Depths in view 0 of the pairs triangulated with a unit baseline.
+
+    :param R: (3, 3) R_1_0; :param t: (3,) unit translation, view 1 from view 0.
+    :returns: (N,) depths in baselines; NaN behind either camera, under a tiny triangulation
+        angle (unless too few others remain), and everywhere when fewer than 5 remain.
+    """
     P0 = np.hstack([np.eye(3), np.zeros((3, 1))])
     P1 = np.hstack([R, t.reshape(3, 1)])
     X = cv2.triangulatePoints(P0, P1, xy0.T.astype(np.float64), xy1.T.astype(np.float64))
@@ -131,8 +148,8 @@ def baseline_ratio(R: FloatArray, t: FloatArray, xy0: FloatArray, xy1: FloatArra
     if np.count_nonzero(steep) >= 5 and np.count_nonzero(steep) >= 0.3 * np.count_nonzero(good):
         good = steep
     if np.count_nonzero(good) < 5:
-        return float('nan')
-    return float(1.0 / np.median(z0[good]))
+        good[:] = False
+    return np.where(good, z0, np.nan)
 
 
 def analyse(xy0: FloatArray, xy1: FloatArray, sigma_norm: float, min_inliers: int,
@@ -177,8 +194,10 @@ def analyse(xy0: FloatArray, xy1: FloatArray, sigma_norm: float, min_inliers: in
     if g_rot <= g_e or parallax < min_parallax:
         return Motion(n_inl, g_e, g_rot, parallax, True, nan)
     _, R, t, _ = cv2.recoverPose(E, a, b, np.eye(3))
-    ratio = baseline_ratio(R, t.ravel(), a, b)
-    return Motion(n_inl, g_e, g_rot, parallax, not np.isfinite(ratio), ratio)
+    depths = np.full(len(xy0), nan)
+    depths[inl] = unit_baseline_depths(R, t.ravel(), a, b)
+    ratio = float(1.0 / np.nanmedian(depths)) if np.any(np.isfinite(depths)) else nan
+    return Motion(n_inl, g_e, g_rot, parallax, not np.isfinite(ratio), ratio, depths)
 
 
 def sharpness(grey: npt.NDArray[np.uint8]) -> float:

@@ -9,6 +9,14 @@ provided two-view geometry shows real translation (GRIC, see ``keyframe_geometry
 rotations and tiny baselines never make keyframes. Frames in which the calibration target is
 seen large enough are preferred. Tracking runs on a grey image downscaled to
 ``track_width_px``.
+
+The baseline ratio is measured against the depths of all the keyframe's corners triangulated
+so far, not only those still tracked: walking on, the near corners leave the view first, and
+the survivors' median depth alone grows with the baseline (outdoors it underestimated the
+ratio three times, and keyframes came past the band). Even so the estimate can fall behind
+on a fast walk away from a deep scene, so the ratio is also predicted at constant speed: the
+fastest growth per second measured since the reference (or the last turn or degenerate
+frame: a pause), times the time since it.
 """
 from collections import deque
 from dataclasses import dataclass
@@ -119,8 +127,9 @@ class Decision:
         'degenerate', 'rotating', 'fast', 'lost', 'waiting'.
     :param sharpness_ratio: Laplacian variance / running median (1.0 = typical).
     :param tracked_ratio: corners still tracked / corners detected in the reference.
-    :param baseline_ratio: estimated baseline / median depth to the last keyframe (NaN if the
-        two-view test did not run or was degenerate).
+    :param baseline_ratio: estimated baseline / median depth to the last keyframe, or its
+        constant-speed prediction when larger (NaN if the two-view test did not run or was
+        degenerate).
     :param after_loss: for a keyframe: tracking to the previous keyframe was lost in between,
         so the pair shares no tracked corners.
     """
@@ -144,6 +153,11 @@ class KeyframeSelector:
         self._prev: npt.NDArray[np.uint8] | None = None
         self._pts: npt.NDArray[np.float32] | None = None  # (N, 1, 2) tracked now
         self._pts0: npt.NDArray[np.float32] | None = None  # the same corners in the reference
+        self._ids = np.zeros(0, np.int64)  # index in the reference of each tracked corner
+        self._depths = np.zeros(0)  # (seeded,) reference depths, common unit (NaN: unknown)
+        self._stamp_ns = 0  # of the frame being decided
+        self._ref_stamp_ns = 0  # of the reference the corners were detected in
+        self._rate_per_ns = 0.0  # fastest growth of the baseline ratio since the reference
         self._cams: tuple[CameraModel, CameraModel] | None = None
         self._last_step: npt.NDArray[np.float32] | None = None
         self._seeded = 0
@@ -192,6 +206,9 @@ class KeyframeSelector:
         self._pts = np.concatenate(found) if found else np.zeros((0, 1, 2), np.float32)
         self._pts0 = self._pts.copy()
         self._seeded = len(self._pts)
+        self._ids = np.arange(self._seeded)
+        self._depths = np.full(self._seeded, np.nan)
+        self._ref_stamp_ns, self._rate_per_ns = self._stamp_ns, 0.0
 
     def _track(self, grey: npt.NDArray[np.uint8]) -> None:
         if self._prev is None or self._pts is None or self._pts0 is None or not len(self._pts):
@@ -204,7 +221,7 @@ class KeyframeSelector:
         xy = nxt.reshape(-1, 2)
         ok &= (xy[:, 0] >= 0) & (xy[:, 0] <= w - 1) & (xy[:, 1] >= 0) & (xy[:, 1] <= h - 1)
         self._last_step = self._pts[ok]  # where the surviving corners were one frame ago
-        self._pts, self._pts0 = nxt[ok], self._pts0[ok]
+        self._pts, self._pts0, self._ids = nxt[ok], self._pts0[ok], self._ids[ok]
 
     def _geometry(self, cam: CameraModel) -> keyframe_geometry.Motion | None:
         """Two-view test against the reference; None when a pure rotation already explains
@@ -229,6 +246,7 @@ class KeyframeSelector:
         :param camera: intrinsics of this image (distortion allowed).
         :param target_area: largest calibration target's area / image area (0 if none seen).
         """
+        self._stamp_ns = stamp_ns
         grey = self._grey(image_bgr)
         cam = self._track_camera(camera, grey)
         sharp = self._sharpness_ratio(grey)
@@ -248,6 +266,8 @@ class KeyframeSelector:
 
         turning = self._turning(cam) if n >= self.cfg.lost_tracks else ''
         self._since_turn = 0 if turning else self._since_turn + 1
+        if turning:
+            self._rate_per_ns = 0.0  # the walk paused: its speed so far predicts nothing
         if not self._have_keyframe and not blurred:
             return decide(True, 'first')
         if n < self.cfg.lost_tracks:
@@ -265,10 +285,33 @@ class KeyframeSelector:
             return self._lost(grey, decide, False) if low_tracks else decide(False, reason)
         geo = self._geometry(cam)
         if geo is None or geo.degenerate:
+            self._rate_per_ns = 0.0
             # Few corners left and still no baseline: the overlap with the last keyframe is
             # going; start again from here rather than wait on a handful of far corners.
             return self._lost(grey, decide, False) if low_tracks else decide(False, 'degenerate')
-        return self._by_baseline(geo.baseline_ratio, low_tracks, target_area, decide)
+        return self._by_baseline(self._pooled_ratio(geo), low_tracks, target_area, decide)
+
+    def _pooled_ratio(self, geo: keyframe_geometry.Motion) -> float:
+        """
+        Baseline / median depth of every reference corner triangulated so far.
+
+        ``geo.depths`` are in units of this frame's baseline; the corners also in the pool
+        give that baseline in the pool's unit (median of the depth ratios), then the fresh
+        depths replace the pool's (a longer baseline measures them better). Corners lost
+        since keep their last depth.
+        """
+        if geo.depths is None:
+            return geo.baseline_ratio
+        fresh = np.isfinite(geo.depths)
+        known = self._depths[self._ids]
+        both = fresh & np.isfinite(known)
+        if np.count_nonzero(both) >= 5:
+            baseline = float(np.median(known[both] / geo.depths[both]))
+        else:  # nothing to relate to: this frame's baseline starts the pool's unit
+            self._depths[:] = np.nan
+            baseline = 1.0
+        self._depths[self._ids[fresh]] = baseline * geo.depths[fresh]
+        return baseline / float(np.nanmedian(self._depths))
 
     def _turning(self, cam: CameraModel) -> str:
         """'fast' or 'rotating' when the camera swings, or turns on the spot; else ''."""
@@ -316,6 +359,12 @@ class KeyframeSelector:
         cfg = self.cfg
         has_target = target_area >= cfg.min_target_area
         wanted = cfg.target_baseline_ratio * (1.0 if has_target else cfg.no_target_factor)
+        dt_ns = self._stamp_ns - self._ref_stamp_ns
+        if np.isfinite(ratio) and dt_ns > 0 and ratio >= cfg.min_baseline_ratio:
+            # Constant-speed prediction; only once the measured ratio is in the band, so a
+            # camera that stopped is not taken for one still walking.
+            self._rate_per_ns = max(self._rate_per_ns, ratio / dt_ns)
+            ratio = max(ratio, self._rate_per_ns * dt_ns)
         if ratio >= min(wanted, cfg.max_baseline_ratio):
             return decide(True, 'baseline', ratio)
         if low_tracks and ratio >= cfg.min_baseline_ratio:
