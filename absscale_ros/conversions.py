@@ -29,7 +29,7 @@ from nav_msgs.msg import Path
 import numpy as np
 import numpy.typing as npt
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2, PointField
-from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+from std_msgs.msg import Float64MultiArray, Header, MultiArrayDimension
 
 _NS_PER_S = 1_000_000_000
 _INT32_MIN, _INT32_MAX = -(2 ** 31), 2 ** 31 - 1
@@ -776,6 +776,22 @@ def diagnostic_array(statuses: Sequence[DiagnosticStatus], stamp_ns: int) -> Dia
     _header(msg, stamp_ns, '')
     msg.status = list(statuses)
     return msg
+
+
+def diagnostic_summary(msg: Any) -> dict[str, dict[str, Any]]:
+    """Status name -> ``{level (int 0..3), message, values}`` of a DiagnosticArray."""
+    return {str(st.name): {'level': _level_byte(st.level)[0], 'message': str(st.message),
+                           'values': diagnostic_values(st)} for st in msg.status}
+
+
+def ack_to_msg(text: str, stamp: Any) -> Header:
+    """The step-mode acknowledgement ``text`` (see core/replay.Ack) for a message's stamp."""
+    return Header(stamp=stamp, frame_id=text)
+
+
+def ack_from_msg(msg: Any) -> tuple[str, int]:
+    """Inverse of :func:`ack_to_msg`: (text, stamp in ns)."""
+    return str(msg.frame_id), stamp_to_ns(msg.stamp)
 
 
 def diagnostic_values(status: Any) -> dict[str, str]:

@@ -100,3 +100,13 @@ def test_diagnostic_values_are_compact_strings_and_survive_cdr() -> None:
         msg = read(array)
         assert conversions.diagnostic_values(msg.status[0]) == expected
     assert conversions.diagnostic_values(conversions.diagnostic_status('n', 'ok', '')) == {}
+
+
+def test_ack_and_diagnostic_summary_round_trip() -> None:
+    stamp = conversions.ns_to_stamp(1_700_000_000_000_000_007)
+    text, stamp_ns = conversions.ack_from_msg(conversions.ack_to_msg('sfm|/a|/b,/c', stamp))
+    assert (text, stamp_ns) == ('sfm|/a|/b,/c', 1_700_000_000_000_000_007)
+    arr = conversions.diagnostic_array(
+        [conversions.diagnostic_status('scale: metric scale', 'warn', 'why', {'edges': 6})], 5)
+    assert conversions.diagnostic_summary(arr) == {
+        'scale: metric scale': {'level': 1, 'message': 'why', 'values': {'edges': '6'}}}

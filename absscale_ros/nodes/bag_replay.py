@@ -28,7 +28,8 @@ class BagReplayNode(Node):
             ('bag', ''), ('mode', 'rate'), ('rate', 1.0), ('topics', ''), ('remap', ''),
             ('start_offset_s', 0.0), ('loop', False), ('step_topics', ''),
             ('step_timeout_s', 10.0), ('expect_nodes', ''), ('qos', 'reliable'),
-            ('progress_period_s', 5.0), ('startup_timeout_s', 5.0), ('settle_s', 0.0)])
+            ('progress_period_s', 5.0), ('startup_timeout_s', 5.0), ('settle_s', 0.0),
+            ('observer', '')])
         self._p = {x.name: x.value for x in p}
         if self._p['mode'] not in ('rate', 'fast', 'step'):
             raise ValueError(f"mode must be rate, fast or step, not {self._p['mode']!r}")
@@ -86,12 +87,24 @@ class BagReplayNode(Node):
                     return False
         return True
 
+    def _observed(self) -> bool:
+        """With ``observer`` set (absscale run's graph_monitor), it must hear every graph topic."""
+        observer = self._p['observer']
+        if not observer:
+            return True
+        for topic, _ in self.get_topic_names_and_types():
+            if not topic.startswith('/absscale/') or topic == common.ACK_TOPIC or 'debug' in topic:
+                continue
+            if observer not in {i.node_name for i in self.get_subscriptions_info_by_topic(topic)}:
+                return False
+        return True
+
     def _ready(self) -> bool:
         """Replay starts once the expected nodes can acknowledge and every topic is heard."""
         ackers = {i.node_name for i in self.get_publishers_info_by_topic(common.ACK_TOPIC)}
         missing = set(_csv(self._p['expect_nodes'])) - ackers
         unheard = [t for t, pub in self._pubs.items() if pub.get_subscription_count() == 0]
-        if not missing and not unheard and self._graph_known():
+        if not missing and not unheard and self._graph_known() and self._observed():
             # Across processes a publisher may be matched to its subscribers a moment after
             # discovery names them; a message sent before would be lost.
             if self._known_since is None:
@@ -160,7 +173,7 @@ class BagReplayNode(Node):
 
     def _on_ack(self, msg: Header) -> None:
         try:
-            ack = replay.Ack.decode(msg.frame_id, conversions.stamp_to_ns(msg.stamp))
+            ack = replay.Ack.decode(*conversions.ack_from_msg(msg))
         except ValueError as err:
             self.get_logger().warning(str(err), throttle_duration_sec=5.0)
             return

@@ -2,6 +2,7 @@
 import importlib
 from typing import Any, Iterable
 
+from absscale_ros import conversions
 from absscale_ros.core.errors import BagError
 from absscale_ros.core.replay import Ack
 from rclpy.node import Node
@@ -29,6 +30,22 @@ def message_class(msgtype: str) -> Any:
             from err
 
 
+class DiagnosticsPublisher:
+    """One node's ``/diagnostics`` output: a status named ``'<node>: <what>'`` per call."""
+
+    def __init__(self, node: Node, what: str) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray
+        self._node, self._name = node, f'{node.get_name()}: {what}'
+        self._pub = node.create_publisher(DiagnosticArray, '/diagnostics', 10)
+
+    def publish(self, level: str, message: str, values: dict[str, Any],
+                stamp_ns: int | None = None) -> None:
+        """Publish one status; the stamp defaults to the node's clock."""
+        status = conversions.diagnostic_status(self._name, level, message, values)
+        stamp = self._node.get_clock().now().nanoseconds if stamp_ns is None else stamp_ns
+        self._pub.publish(conversions.diagnostic_array([status], stamp))
+
+
 class StepAck:
     """Publishes the acknowledgement the lossless replay waits for (see core/replay.py)."""
 
@@ -40,7 +57,7 @@ class StepAck:
         """Say that this node handled ``input_topic`` at ``stamp`` and published ``outputs``."""
         text = Ack(self._node.get_name(), self._resolve(input_topic), 0,
                    tuple(self._resolve(o) for o in outputs)).encode()
-        self._pub.publish(Header(stamp=stamp, frame_id=text))
+        self._pub.publish(conversions.ack_to_msg(text, stamp))
 
     def _resolve(self, topic: str) -> str:
         return self._node.resolve_topic_name(topic)

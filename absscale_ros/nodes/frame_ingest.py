@@ -17,7 +17,6 @@ from typing import Any
 from absscale_ros import conversions
 from absscale_ros.core import calibration, errors, ingest, pairing
 from absscale_ros.nodes import common
-from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
@@ -45,7 +44,7 @@ class FrameIngestNode(Node):
         self._frames_pub = self.create_publisher(Image, '/absscale/frames', common.RELIABLE)
         self._info_pub = self.create_publisher(CameraInfo, '/absscale/camera_info',
                                                common.RELIABLE)
-        self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self._diag = common.DiagnosticsPublisher(self, 'ingest')
         self._ack = common.StepAck(self)
         self._decode = (conversions.compressed_msg_to_bgr if p['compressed']
                         else conversions.image_msg_to_bgr)
@@ -137,10 +136,7 @@ class FrameIngestNode(Node):
         elif self._last_problem:
             level, text = 'warn', self._last_problem
         self._last_problem = ''
-        status = conversions.diagnostic_status(f'{self.get_name()}: ingest', level, text,
-                                               self.report())
-        self._diag_pub.publish(conversions.diagnostic_array(
-            [status], self.get_clock().now().nanoseconds))
+        self._diag.publish(level, text, self.report())
 
 
 def main(args: list[str] | None = None) -> None:

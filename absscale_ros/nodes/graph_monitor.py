@@ -108,11 +108,7 @@ class GraphMonitorNode(Node):
         if self._recorder is not None:
             self._recorder.write('/diagnostics', 'diagnostic_msgs/msg/DiagnosticArray',
                                  time.time_ns(), serialize_message(msg))
-        for status in msg.status:
-            self.diagnostics[status.name] = {
-                'level': int.from_bytes(status.level, 'little') if isinstance(
-                    status.level, bytes) else int(status.level),
-                'message': status.message, 'values': conversions.diagnostic_values(status)}
+        self.diagnostics.update(conversions.diagnostic_summary(msg))
 
     def report(self) -> dict[str, Any]:
         return {'messages_per_topic': dict(sorted(self.counts.items())),

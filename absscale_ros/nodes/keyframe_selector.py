@@ -17,7 +17,6 @@ from typing import Any
 from absscale_ros import conversions
 from absscale_ros.core import detect, errors, keyframe_geometry, keyframes, pairing
 from absscale_ros.nodes import common
-from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
@@ -41,7 +40,7 @@ class KeyframeSelectorNode(Node):
         self._kf_pub = self.create_publisher(Image, '/absscale/keyframes', common.RELIABLE)
         self._kv_pub = self.create_publisher(PointCloud2, '/absscale/keyframe_vertices',
                                              common.RELIABLE)
-        self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self._diag = common.DiagnosticsPublisher(self, 'keyframes')
         self._ack = common.StepAck(self)
         self.create_subscription(CameraInfo, '/absscale/camera_info', self._on_info,
                                  common.RELIABLE)
@@ -127,9 +126,7 @@ class KeyframeSelectorNode(Node):
             level, text = 'warn', 'no camera_info yet (assuming a 65 degree field of view)'
         elif r['frames'] and not r['keyframes']:
             level, text = 'warn', 'no keyframe yet (degenerate motion or blur)'
-        status = conversions.diagnostic_status(f'{self.get_name()}: keyframes', level, text, r)
-        self._diag_pub.publish(conversions.diagnostic_array(
-            [status], self.get_clock().now().nanoseconds))
+        self._diag.publish(level, text, r)
 
 
 def main(args: list[str] | None = None) -> None:

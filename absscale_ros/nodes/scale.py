@@ -15,7 +15,6 @@ from absscale_ros import conversions
 from absscale_ros.core import scale, targets
 from absscale_ros.core.errors import AbsScaleError
 from absscale_ros.nodes import common
-from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Path
 import numpy as np
 from rclpy.node import Node
@@ -30,7 +29,7 @@ class ScaleNode(Node):
         self._cfg = common.declare_config(self, scale.ScaleConfig())
         p = {x.name: x.value for x in self.declare_parameters('', [
             ('sheet', 'letter'), ('sheet_size_m', [0.0, 0.0]), ('cube_edge_m', 0.8),
-            ('frame_id', 'map'), ('min_change', 0.001)])}
+            ('frame_id', 'map'), ('min_change', 0.001), ('require_path', False)])}
         custom = tuple(p['sheet_size_m']) if min(p['sheet_size_m']) > 0 else None
         # 'auto': letter or A4, whichever the reconstructed corners fit (a tie claims nothing).
         names = list(targets.SHEET_SIZES_M) if p['sheet'] == 'auto' and not custom \
@@ -40,16 +39,19 @@ class ScaleNode(Node):
         self._sheet_m, self._sheet_alternatives = sizes[0], tuple(sizes[1:])
         self._cube_m = p['cube_edge_m']
         self._frame, self._min_change = p['frame_id'], p['min_change']
+        self._require_path = p['require_path']  # estimate from targets + path of one stamp
         self._cloud_pub = self.create_publisher(PointCloud2, '/scaled_cloud', common.LATCHED)
         self._path_pub = self.create_publisher(Path, '/absscale/scaled_path', common.LATCHED)
         self._scale_pub = self.create_publisher(Float64MultiArray, '/absscale/scale',
                                                 common.LATCHED)
-        self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self._diag = common.DiagnosticsPublisher(self, 'metric scale')
         self._ack = common.StepAck(self)
         self.estimate: scale.ScaleEstimate | None = None
         self.history: list[dict[str, float]] = []
         self._cloud: Any = None
         self._path: Any = None
+        self._targets: Any = None
+        self._estimated_ns: int | None = None
         self._why_not = 'no target points yet'
         for topic, cls, cb in (('/absscale/target_points', PointCloud2, self._on_targets),
                                ('/absscale/sparse_cloud', PointCloud2, self._on_cloud),
@@ -58,30 +60,8 @@ class ScaleNode(Node):
                                      common.RELIABLE)
 
     def _on_targets(self, msg: PointCloud2, topic: str) -> None:
-        pts = conversions.cloud_msg_to_array(msg)
-        xyz = np.stack([pts[a] for a in 'xyz'], axis=1).astype(np.float64) if len(pts) else \
-            np.zeros((0, 3))
-        objects = scale.group_objects(xyz, *(np.asarray(pts[f]) for f in (
-            'object_id', 'target_type', 'n_obs', 'angle_deg')), self._sheet_m, self._cube_m,
-            self._sheet_alternatives) \
-            if len(pts) else []
-        outputs: list[str] = []
-        try:
-            keyframes = None if self._path is None else \
-                len(conversions.path_msg_to_poses(self._path)[1])
-            est = scale.estimate(objects, self._cfg, keyframes)
-        except AbsScaleError as err:
-            self._why_not = str(err)
-            self.get_logger().info(f'no metric scale yet: {err}', throttle_duration_sec=10.0)
-        else:
-            changed = self.estimate is None or \
-                abs(est.factor / self.estimate.factor - 1.0) > self._min_change
-            self.estimate = est
-            self.history.append({'stamp_ns': conversions.stamp_to_ns(msg.header.stamp),
-                                 'factor': est.factor, 'sigma': est.sigma})
-            if changed:
-                outputs = self._publish_all(msg.header.stamp)
-        self._diagnose(msg.header.stamp)
+        self._targets = msg
+        outputs = self._estimate_when_paired()
         self._ack.ack(msg.header.stamp, topic, outputs)
 
     def _on_cloud(self, msg: PointCloud2, topic: str) -> None:
@@ -91,8 +71,53 @@ class ScaleNode(Node):
 
     def _on_path(self, msg: Path, topic: str) -> None:
         self._path = msg
-        outputs = self._publish_all(msg.header.stamp) if self.estimate else []
+        outputs = self._estimate_when_paired()
+        if self.estimate and not outputs:
+            outputs = self._publish_all(msg.header.stamp)
         self._ack.ack(msg.header.stamp, topic, outputs)
+
+    def _estimate_when_paired(self) -> list[str]:
+        """
+        Estimate once per target_points message, from it and the path of the same stamp.
+
+        The sfm publishes both per keyframe, but on two topics whose arrival order is not
+        fixed (least of all across processes); waiting for the pair keeps the verdict
+        independent of it. Without ``require_path`` the path is optional (standalone use).
+        """
+        msg = self._targets
+        if msg is None:
+            return []
+        stamp_ns = conversions.stamp_to_ns(msg.header.stamp)
+        path_ns = None if self._path is None else conversions.stamp_to_ns(self._path.header.stamp)
+        if stamp_ns == self._estimated_ns or (self._require_path and path_ns != stamp_ns):
+            return []
+        self._estimated_ns = stamp_ns
+        keyframes = None if path_ns != stamp_ns else \
+            len(conversions.path_msg_to_poses(self._path)[1])
+        outputs = self._estimate(msg, keyframes)
+        self._diagnose(msg.header.stamp)
+        return outputs
+
+    def _estimate(self, msg: PointCloud2, keyframes: int | None) -> list[str]:
+        pts = conversions.cloud_msg_to_array(msg)
+        xyz = np.stack([pts[a] for a in 'xyz'], axis=1).astype(np.float64) if len(pts) else \
+            np.zeros((0, 3))
+        objects = scale.group_objects(xyz, *(np.asarray(pts[f]) for f in (
+            'object_id', 'target_type', 'n_obs', 'angle_deg')), self._sheet_m, self._cube_m,
+            self._sheet_alternatives) \
+            if len(pts) else []
+        try:
+            est = scale.estimate(objects, self._cfg, keyframes)
+        except AbsScaleError as err:
+            self._why_not = str(err)
+            self.get_logger().info(f'no metric scale yet: {err}', throttle_duration_sec=10.0)
+            return []
+        changed = self.estimate is None or \
+            abs(est.factor / self.estimate.factor - 1.0) > self._min_change
+        self.estimate = est
+        self.history.append({'stamp_ns': conversions.stamp_to_ns(msg.header.stamp),
+                             'factor': est.factor, 'sigma': est.sigma})
+        return self._publish_all(msg.header.stamp) if changed else []
 
     def _publish_all(self, stamp: Any) -> list[str]:
         est = self.estimate
@@ -120,11 +145,8 @@ class ScaleNode(Node):
             values.update(factor=est.factor, sigma=est.sigma, edges=len(est.measured),
                           residual_rms_mm=1000 * float(np.sqrt(np.mean(est.residuals_m ** 2))),
                           rejected='; '.join(est.rejected))
-        status = conversions.diagnostic_status(
-            'scale', 'ok' if est else 'warn',
-            f'{est.factor:.6g} m/unit +/- {est.sigma:.2g}' if est else self._why_not, values)
-        self._diag_pub.publish(conversions.diagnostic_array([status],
-                                                            conversions.stamp_to_ns(stamp)))
+        text = f'{est.factor:.6g} m/unit +/- {est.sigma:.2g}' if est else self._why_not
+        self._diag.publish('ok' if est else 'warn', text, values, conversions.stamp_to_ns(stamp))
 
     def report(self) -> dict[str, Any]:
         est = self.estimate

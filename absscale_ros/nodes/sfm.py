@@ -16,7 +16,6 @@ from typing import Any
 from absscale_ros import conversions
 from absscale_ros.core import errors, keyframes, pairing, sfm, sfm_outputs
 from absscale_ros.nodes import common
-from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Path
 import numpy as np
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
@@ -51,7 +50,7 @@ class SfmNode(Node):
         self._pubs = {name: self.create_publisher(cls, f'/absscale/{name}', common.RELIABLE)
                       for name, cls in (('sparse_cloud', PointCloud2), ('keyframe_path', Path),
                                         ('target_points', PointCloud2))}
-        self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self._diag = common.DiagnosticsPublisher(self, 'reconstruction')
         self._ack = common.StepAck(self)
         group = MutuallyExclusiveCallbackGroup()  # the map is updated by one callback at a time
         self.create_subscription(CameraInfo, '/absscale/camera_info', self._on_info,
@@ -130,9 +129,7 @@ class SfmNode(Node):
         elif vertices == 0:
             level, text = 'warn', ('no target vertex reconstructed yet (target not seen from '
                                    f'two keyframes with parallax); {text}')
-        status = conversions.diagnostic_status(f'{self.get_name()}: reconstruction', level, text,
-                                               {**r, 'target_vertices': vertices})
-        self._diag_pub.publish(conversions.diagnostic_array([status], stamp_ns))
+        self._diag.publish(level, text, {**r, 'target_vertices': vertices}, stamp_ns)
 
     def report(self, full_rms: bool = True) -> dict[str, Any]:
         """

@@ -28,7 +28,6 @@ from typing import Any
 from absscale_ros import conversions
 from absscale_ros.core import detect, detect_cube, detect_sheet, errors
 from absscale_ros.nodes import common
-from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
@@ -61,7 +60,7 @@ class VertexDetectorNode(Node):
         self._vertices_pub = self.create_publisher(PointCloud2, '/absscale/vertices',
                                                    common.RELIABLE)
         self._debug_pub = self.create_publisher(Image, '/absscale/debug_image', 1)
-        self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self._diag = common.DiagnosticsPublisher(self, 'detection')
         self._ack = common.StepAck(self)
         self._K: np.ndarray | None = None
         self._info_sub = self.create_subscription(CameraInfo, '/absscale/camera_info',
@@ -117,9 +116,7 @@ class VertexDetectorNode(Node):
             level, text = 'warn', 'waiting for camera_info (aspect check estimates focal)'
         elif self._frames and not self._with_target:
             level, text = 'warn', 'target not seen'
-        status = conversions.diagnostic_status(f'{self.get_name()}: detection', level, text, r)
-        self._diag_pub.publish(conversions.diagnostic_array(
-            [status], self.get_clock().now().nanoseconds))
+        self._diag.publish(level, text, r)
 
 
 def main(args: list[str] | None = None) -> None:

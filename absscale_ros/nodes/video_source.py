@@ -14,7 +14,6 @@ from absscale_ros.core.errors import AbsScaleError
 from absscale_ros.core.types import CameraModel
 from absscale_ros.nodes import common
 import cv2
-from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
@@ -33,7 +32,7 @@ class VideoSourceNode(Node):
         self._model = self._load_model(p['calibration_file'])
         self._image_pub = self.create_publisher(Image, '/camera/image_raw', common.SENSOR)
         self._info_pub = self.create_publisher(CameraInfo, '/camera/camera_info', common.SENSOR)
-        self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self._diag = common.DiagnosticsPublisher(self, 'camera')
         self.published = self.failures = 0
         self.finished = False
         self.create_timer(1.0 / fps, self._grab)
@@ -87,11 +86,9 @@ class VideoSourceNode(Node):
 
     def _diagnose(self) -> None:
         level = 'ok' if self.failures == 0 or self.finished else 'warn'
-        status = conversions.diagnostic_status(
-            'video_source', level, 'streaming' if not self.finished else 'end of video',
-            {'source': self._source, 'frames': self.published, 'read_failures': self.failures,
-             'calibrated': self._model is not None})
-        self._diag_pub.publish(conversions.diagnostic_array([status], time.time_ns()))
+        values = {'source': self._source, 'frames': self.published,
+                  'read_failures': self.failures, 'calibrated': self._model is not None}
+        self._diag.publish(level, 'end of video' if self.finished else 'streaming', values)
 
     def destroy_node(self) -> None:
         self._cap.release()
