@@ -9,12 +9,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
-from absscale_ros.core import lines, targets
+from absscale_ros.core import cube_geometry, lines, targets
 
 if TYPE_CHECKING:
     from absscale_ros.core.detect_cube import Face
 
 Array = npt.NDArray[np.float64]
+MIN_POSING_ASPECT = 0.35  # a narrower face (seen nearly edge-on) poses the cube poorly
+BORDER_PX = 2.0  # a face corner this close to the image border is where the border cuts it
 
 
 def find(parent: list[int], i: int) -> int:
@@ -42,12 +44,22 @@ def cluster_corners(faces: list['Face'], merge_frac: float) -> npt.NDArray[np.in
     return np.array([find(parent, i) for i in range(len(pts))], dtype=np.int64)
 
 
-def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]]
-                   ) -> targets.TargetDetection:
+def _posing(face: 'Face') -> bool:
+    """Return True for a face that fixes a pose: whole, and seen at most 70 deg off-axis."""
+    sides = np.hypot(*(face.corners_px - np.roll(face.corners_px, -1, 0)).T)
+    return not face.thin and sides.min() >= MIN_POSING_ASPECT * sides.max()
+
+
+def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks: list[Array],
+                   shape: tuple[int, ...], shape_tol_frac: float
+                   ) -> targets.TargetDetection | None:
     """
     Assemble vertices (least-squares points of meeting edges), ids and edges of a cube.
 
-    A thin face adds its colour to the two corners it shares, not its far corners.
+    A thin face adds its colour to the two corners it shares, not its far corners. Vertices
+    that no cube pose explains (``cube_geometry``) and corners where the image border cuts a
+    face are left out, and faces left with none of their corners; None when no vertex where
+    two colours meet is left.
     """
     measured = [(0, 3) if f.thin else range(4) for f in faces]
     keys = sorted({int(lab[c]) for lab, cs in zip(labels, measured) for c in cs})
@@ -64,7 +76,20 @@ def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]]
             if w is not None and w != v:
                 edges.add((min(v, w), max(v, w)))
     vertices = np.array([lines.nearest_point(np.array(ls)) for ls in meeting])
-    ids = np.zeros(len(keys), dtype=np.int64)
+    posing = [_posing(f) for f in faces]
+    keep = cube_geometry.explained(vertices, list(np.flatnonzero(posing)),
+                                   [f.corners_px for f in faces], Ks, shape_tol_frac)
+    h, w = shape[:2]
+    keep &= (vertices >= BORDER_PX).all(axis=1) & (vertices[:, 0] <= w - 1 - BORDER_PX) & (
+        vertices[:, 1] <= h - 1 - BORDER_PX)
+    if not any(keep[v] and bin(int(masks[v])).count('1') >= 2 for v in range(len(keys))):
+        return None
+    seen = [any(keep[index[int(lab[c])]] for c in cs) for lab, cs in zip(labels, measured)]
+    faces = [f for f, s in zip(faces, seen) if s]
+    new = np.cumsum(keep) - 1
+    edges = {(int(new[a]), int(new[b])) for a, b in edges if keep[a] and keep[b]}
+    vertices, masks = vertices[keep], masks[keep]
+    ids = np.zeros(len(vertices), dtype=np.int64)
     centre = vertices.mean(axis=0)
     # Clockwise from the top (image y down) among vertices with the same colour mask.
     ang = np.mod(np.arctan2(vertices[:, 1] - centre[1], vertices[:, 0] - centre[0]) + np.pi / 2,

@@ -71,7 +71,8 @@ def detect(image_bgr: npt.NDArray[np.uint8], cfg: DetectConfig,
     Run the configured detectors on one BGR image.
 
     :param image_bgr: (H, W, 3) uint8 BGR image (distorted is fine: edges are fitted locally).
-    :param K: (3, 3) intrinsics px, used by the sheet aspect check; None to estimate.
+    :param K: (3, 3) intrinsics px, used by the sheet aspect and cube shape checks; None to
+        estimate.
     """
     if image_bgr.ndim != 3 or image_bgr.shape[2] != 3 or image_bgr.dtype != np.uint8:
         raise ValueError(f'need an (H, W, 3) uint8 image, got {image_bgr.shape} {image_bgr.dtype}')
@@ -79,7 +80,7 @@ def detect(image_bgr: npt.NDArray[np.uint8], cfg: DetectConfig,
     looked: list[str] = []
     if cfg.target in ('cube', 'auto'):
         looked.append('cube')
-        found += detect_cube.detect_cubes(image_bgr, cfg.cube)
+        found += detect_cube.detect_cubes(image_bgr, cfg.cube, K)
     sheet_cfgs = cfg.sheet_configs()
     if sheet_cfgs:
         looked.append('sheet')

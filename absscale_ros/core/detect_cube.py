@@ -16,7 +16,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from absscale_ros.core import cube_assembly, cube_strips, lines, sides, targets
+from absscale_ros.core import (cube_assembly, cube_geometry, cube_strips, lines, sides,
+                               targets)
 
 Array = npt.NDArray[np.float64]
 
@@ -47,6 +48,10 @@ class CubeConfig:
     :param work_max_side_px: the mask stage runs on an image at most this big.
     :param strip_max_px: widest face seen edge-on looked for as a strip along a face side
         (``cube_strips``; 0 turns it off).
+    :param shape_tol_frac: a vertex farther than this fraction of a face's side from where
+        the cube posed on that face puts it is left out (``cube_geometry``).
+    :param focal_fracs: focal lengths over the larger image side tried in that check without
+        K (the one that explains the most vertices is used).
     """
 
     hue_red_deg: tuple[float, float] = (340.0, 20.0)
@@ -67,6 +72,8 @@ class CubeConfig:
     min_step: float = 15.0
     work_max_side_px: int = 640
     strip_max_px: float = 20.0
+    shape_tol_frac: float = 0.04
+    focal_fracs: tuple[float, ...] = (0.5, 0.7, 0.9, 1.2, 1.6)
 
     def __post_init__(self) -> None:
         for name in ('hue_red_deg', 'hue_yellow_deg', 'hue_purple_deg'):
@@ -233,11 +240,12 @@ def _strips(image_bgr: npt.NDArray[np.uint8], faces: list[Face], cfg: CubeConfig
 
 
 def detect_cubes(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
-                 model: targets.CubeModel | None = None) -> list[targets.TargetDetection]:
+                 K: Array | None = None) -> list[targets.TargetDetection]:
     """
     Find tri-colour cubes in a BGR image.
 
     :param image_bgr: (H, W, 3) uint8 BGR image.
+    :param K: (3, 3) intrinsics px for the cube shape check, or None to estimate.
     :returns: one detection per cube, with vertices, ids (see ``targets``), edges and
         per-face polygons.
     """
@@ -246,6 +254,8 @@ def detect_cubes(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
         return []
     faces += _strips(image_bgr, faces, cfg)
     labels = cube_assembly.cluster_corners(faces, cfg.merge_frac)
+    Ks = [K] if K is not None else [cube_geometry.default_K(image_bgr.shape, f)
+                                    for f in cfg.focal_fracs]
     # Faces that share two vertices share an edge: union them into cubes.
     parent = list(range(len(faces)))
     for a in range(len(faces)):
@@ -269,7 +279,10 @@ def detect_cubes(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
         area = sum(cv2.contourArea(faces[f].corners_px.astype(np.float32)) for f in members)
         if area < cfg.min_area_frac * image_bgr.shape[0] * image_bgr.shape[1]:
             continue  # the paper's area test, on the whole cube
-        out.append(cube_assembly.cube_detection([faces[f] for f in members],
-                                                [labels[4 * f:4 * f + 4] for f in members]))
+        det = cube_assembly.cube_detection(
+            [faces[f] for f in members], [labels[4 * f:4 * f + 4] for f in members],
+            Ks, image_bgr.shape, cfg.shape_tol_frac)
+        if det is not None:
+            out.append(det)
     out.sort(key=lambda d: -d.score)
     return out

@@ -1,0 +1,120 @@
+"""
+Cube shape check: image vertices must be where a cube seen through the camera puts them.
+
+A face whose side is cut by an occluder, or a box of a cube colour beside the cube, gives
+corners that are not cube vertices; a wrong vertex gives a wrong scale downstream. Every
+whole face is a square, so its four corners fix the cube's pose (IPPE on a square, both of
+its solutions; the cube lies behind the face as seen from the camera). A pose is believed when
+another detected face (whole or edge-on) outlines a side face that the posed cube shows, or
+lies within one: a face cut by a post looks like a square seen obliquely, but the cube posed
+on it does not show its neighbours where they are. A vertex is kept only when every believed
+pose puts it within ``tol_frac`` of the posing face's size of a projected cube vertex; a poor
+pose then costs a true vertex rather than adding a wrong one.
+"""
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+Array = npt.NDArray[np.float64]
+# The unit square in the order IPPE_SQUARE wants (x right, y up in the model plane).
+_SQUARE = np.array([[-0.5, 0.5, 0.0], [0.5, 0.5, 0.0], [0.5, -0.5, 0.0], [-0.5, -0.5, 0.0]])
+# Side faces of the cube posed on a face (corners 0-3, the four behind it 4-7), each ordered
+# like the posing face as seen from outside: shared edges run the other way.
+_SIDES = ((1, 0, 4, 5), (2, 1, 5, 6), (3, 2, 6, 7), (0, 3, 7, 4))
+MIN_IOU = 0.4  # a detected face and a face the posed cube shows agree above this overlap
+MIN_INSIDE = 0.8  # ... or when this share of the detected face lies within the shown face
+
+
+def default_K(shape: tuple[int, ...], focal_frac: float) -> Array:
+    """Return a pinhole K with focal ``focal_frac`` x the larger image side, centred."""
+    h, w = shape[:2]
+    f = focal_frac * max(h, w)
+    return np.array([[f, 0.0, 0.5 * (w - 1)], [0.0, f, 0.5 * (h - 1)], [0.0, 0.0, 1.0]])
+
+
+def cube_projections(corners_px: Array, K: Array) -> list[Array]:
+    """
+    Return per pose solution of one face the (8, 2) projected cube vertices: the face's own
+    four corners (in ``corners_px`` order) then the four behind them.
+    """
+    ok, rvecs, tvecs, _ = cv2.solvePnPGeneric(
+        _SQUARE, corners_px.astype(np.float64), K, None, flags=cv2.SOLVEPNP_IPPE_SQUARE)
+    out = []
+    for rvec, tvec in zip(rvecs, tvecs) if ok else ():
+        R, _ = cv2.Rodrigues(rvec)
+        cam_z = float(-(R.T @ tvec.ravel())[2])  # camera centre in the face frame, z
+        if cam_z == 0.0:
+            continue
+        behind = _SQUARE - [0.0, 0.0, np.sign(cam_z)]  # away from the camera
+        cam = np.concatenate([_SQUARE, behind]) @ R.T + tvec.ravel()
+        if (cam[:, 2] <= 1e-6).any():
+            continue
+        proj = cam @ K.T
+        out.append(proj[:, :2] / proj[:, 2:])
+    return out
+
+
+def _signed_area(poly: Array) -> float:
+    x, y = poly[:, 0], poly[:, 1]
+    return 0.5 * float(x @ np.roll(y, -1) - y @ np.roll(x, -1))
+
+
+def _overlap(shown: Array, found: Array) -> tuple[float, float]:
+    """Return (intersection over union, share of ``found`` inside ``shown``), convex outlines."""
+    pa, pb = (cv2.convexHull(p.astype(np.float32)) for p in (shown, found))
+    inter = cv2.intersectConvexConvex(pa, pb)[0]
+    area_b = cv2.contourArea(pb)
+    return (inter / max(cv2.contourArea(pa) + area_b - inter, 1e-9), inter / max(area_b, 1e-9))
+
+
+def agrees(proj: Array, polygon: Array) -> bool:
+    """
+    Return True when ``polygon`` outlines a side face that the posed cube ``proj`` shows, or
+    lies within one (the visible part of a face an occluder cuts).
+    """
+    front = _signed_area(proj[:4])
+    for side in _SIDES:
+        poly = proj[list(side)]
+        if _signed_area(poly) * front > 0.0:
+            iou, inside = _overlap(poly, polygon)
+            if iou >= MIN_IOU or inside >= MIN_INSIDE:
+                return True
+    return False
+
+
+def explained(vertices_px: Array, posing: list[int], polygons: list[Array], Ks: list[Array],
+              tol_frac: float) -> npt.NDArray[np.bool_]:
+    """
+    Return (V,) True for vertices that every believed single-face cube pose explains, with
+    the camera of ``Ks`` (several when the focal length is unknown) that explains the most.
+
+    :param vertices_px: (V, 2) assembled cube vertices.
+    :param posing: indices into ``polygons`` of the faces that pose the cube (whole faces,
+        not seen too obliquely).
+    :param polygons: (4, 2) outlines of every face of this cube found (whole or edge-on).
+    :param tol_frac: largest distance of a vertex from its projected cube vertex, as a
+        fraction of the longest side of the face that gave the pose.
+    :returns: all False when no pose is believed.
+    """
+    best = np.zeros(len(vertices_px), dtype=bool)
+    for K in Ks:
+        keep = _explained(vertices_px, posing, polygons, K, tol_frac)
+        if keep.sum() > best.sum():
+            best = keep
+    return best
+
+
+def _explained(vertices_px: Array, posing: list[int], polygons: list[Array], K: Array,
+               tol_frac: float) -> npt.NDArray[np.bool_]:
+    keep = None
+    for f in posing:
+        corners = polygons[f]
+        side = float(np.hypot(*(corners - np.roll(corners, -1, 0)).T).max())
+        tol = max(3.0, tol_frac * side)
+        for proj in cube_projections(corners, K):
+            if not any(agrees(proj, polygons[g]) for g in range(len(polygons)) if g != f):
+                continue
+            near = np.hypot(*(vertices_px[:, None, :] - proj[None, :, :]).transpose(2, 0, 1))
+            ok = near.min(axis=1) < tol
+            keep = ok if keep is None else keep & ok
+    return np.zeros(len(vertices_px), dtype=bool) if keep is None else keep
