@@ -43,7 +43,9 @@ class CubeConfig:
     :param merge_frac: corners of two faces closer than this fraction of the shorter face side
         are one vertex.
     :param min_faces: faces a cube needs (one face alone names no vertex uniquely).
-    :param min_support: smallest fraction of each face side backed by a mask edge.
+    :param min_support: smallest fraction of each face side backed by an image edge (a streak
+        of motion blur across a side scatters its edge points; the shape check guards the
+        vertices).
     :param min_step: smallest colour step across a face side (BGR units, 0-255 scale).
     :param work_max_side_px: the mask stage runs on an image at most this big.
     :param strip_max_px: widest face seen edge-on looked for as a strip along a face side
@@ -68,7 +70,7 @@ class CubeConfig:
     hough_theta_deg: float = 2.0
     merge_frac: float = 0.15
     min_faces: int = 2
-    min_support: float = 0.5
+    min_support: float = 0.35
     min_step: float = 15.0
     work_max_side_px: int = 640
     strip_max_px: float = 20.0
