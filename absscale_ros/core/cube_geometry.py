@@ -54,31 +54,30 @@ def cube_projections(corners_px: Array, K: Array) -> list[Array]:
     return out
 
 
-def _signed_area(poly: Array) -> float:
-    x, y = poly[:, 0], poly[:, 1]
-    return 0.5 * float(x @ np.roll(y, -1) - y @ np.roll(x, -1))
+def _signed_areas(polys: Array) -> Array:
+    """Return the (N,) signed areas of (N, K, 2) polygons (shoelace)."""
+    x, y = polys[..., 0], polys[..., 1]
+    return 0.5 * (x * np.roll(y, -1, axis=-1) - y * np.roll(x, -1, axis=-1)).sum(axis=-1)
 
 
-def _overlap(shown: Array, found: Array) -> tuple[float, float]:
-    """Return (intersection over union, share of ``found`` inside ``shown``), convex outlines."""
-    pa, pb = (cv2.convexHull(p.astype(np.float32)) for p in (shown, found))
-    inter = cv2.intersectConvexConvex(pa, pb)[0]
-    area_b = cv2.contourArea(pb)
-    return (inter / max(cv2.contourArea(pa) + area_b - inter, 1e-9), inter / max(area_b, 1e-9))
+def shown_sides(proj: Array) -> list[npt.NDArray[np.float32]]:
+    """Return the convex outlines of the side faces that the posed cube ``proj`` shows."""
+    areas = _signed_areas(np.stack([proj[:4]] + [proj[list(s)] for s in _SIDES]))
+    return [cv2.convexHull(proj[list(s)].astype(np.float32))
+            for s, a in zip(_SIDES, areas[1:]) if a * areas[0] > 0.0]
 
 
-def agrees(proj: Array, polygon: Array) -> bool:
+def agrees(shown: list[npt.NDArray[np.float32]], found: npt.NDArray[np.float32]) -> bool:
     """
-    Return True when ``polygon`` outlines a side face that the posed cube ``proj`` shows, or
-    lies within one (the visible part of a face an occluder cuts).
+    Return True when the convex outline ``found`` outlines one of the ``shown`` side faces,
+    or lies within one (the visible part of a face an occluder cuts).
     """
-    front = _signed_area(proj[:4])
-    for side in _SIDES:
-        poly = proj[list(side)]
-        if _signed_area(poly) * front > 0.0:
-            iou, inside = _overlap(poly, polygon)
-            if iou >= MIN_IOU or inside >= MIN_INSIDE:
-                return True
+    area = cv2.contourArea(found)
+    for poly in shown:
+        inter = cv2.intersectConvexConvex(poly, found)[0]
+        iou = inter / max(cv2.contourArea(poly) + area - inter, 1e-9)
+        if iou >= MIN_IOU or inter >= MIN_INSIDE * area:
+            return True
     return False
 
 
@@ -107,12 +106,14 @@ def explained(vertices_px: Array, posing: list[int], polygons: list[Array], Ks: 
 def _explained(vertices_px: Array, posing: list[int], polygons: list[Array], K: Array,
                tol_frac: float) -> npt.NDArray[np.bool_]:
     keep = None
+    hulls = [cv2.convexHull(p.astype(np.float32)) for p in polygons]
     for f in posing:
         corners = polygons[f]
         side = float(np.hypot(*(corners - np.roll(corners, -1, 0)).T).max())
         tol = max(3.0, tol_frac * side)
         for proj in cube_projections(corners, K):
-            if not any(agrees(proj, polygons[g]) for g in range(len(polygons)) if g != f):
+            shown = shown_sides(proj)
+            if not any(agrees(shown, hulls[g]) for g in range(len(polygons)) if g != f):
                 continue
             near = np.hypot(*(vertices_px[:, None, :] - proj[None, :, :]).transpose(2, 0, 1))
             ok = near.min(axis=1) < tol
