@@ -834,6 +834,31 @@ def scaled_cloud_msg(msg: Any, factor: float, stamp_ns: int, frame_id: str) -> P
     return array_to_cloud_msg(points, stamp_ns, frame_id)
 
 
+def dense_cloud_msg(points: npt.ArrayLike, colors: npt.ArrayLike, normals: npt.ArrayLike,
+                    stamp_ns: int = 0, frame_id: str = 'map') -> PointCloud2:
+    """
+    The dense cloud: float32 ``x y z``, packed ``rgb`` and ``normal_x normal_y normal_z``
+    (PCL's PointXYZRGBNormal names, which RViz and Open3D's ROS readers know).
+    """
+    normals = np.asarray(normals, dtype=np.float32)
+    if normals.shape != np.shape(points):
+        raise ValueError(f'normals {normals.shape} do not match points {np.shape(points)}')
+    return xyz_rgb_to_cloud_msg(points, colors, stamp_ns, frame_id, extra={
+        f'normal_{a}': normals[:, i] for i, a in enumerate('xyz')})
+
+
+def cloud_msg_to_xyz_rgb_normals(msg: Any) -> tuple[
+        npt.NDArray[np.float64], npt.NDArray[np.uint8] | None, npt.NDArray[np.float64] | None]:
+    """Finite points of a PointCloud2 as (N, 3) xyz, and its (N, 3) rgb and normals if any."""
+    pts = cloud_msg_to_array(msg, skip_nans=True)
+    names = pts.dtype.names or ()
+    xyz = np.stack([pts[a] for a in 'xyz'], axis=1).astype(np.float64)
+    rgb = unpack_rgb(pts['rgb']) if 'rgb' in names else None
+    normals = np.stack([pts[f'normal_{a}'] for a in 'xyz'], axis=1).astype(np.float64) \
+        if 'normal_x' in names else None
+    return xyz, rgb, normals
+
+
 def cloud_stamp_and_size(msg: Any) -> tuple[int, int]:
     """(header stamp in ns, number of points) of a PointCloud2, without decoding it."""
     return stamp_to_ns(msg.header.stamp), int(msg.width) * int(msg.height)
