@@ -23,7 +23,7 @@ class FeatureConfig:
     ransac_px: float = 1.5  # epipolar distance threshold of the fundamental-matrix check
     min_inliers: int = 20  # fewer verified matches than this is no match at all
     max_width_px: int = 640  # detect on a copy downscaled to this width (0: full size)
-    flann_checks: int = 0  # > 0: approximate k-d tree matching, leaves checked; 0: brute force
+    flann_checks: int = 32  # > 0: approximate k-d tree matching, leaves checked; 0: brute force
 
     def __post_init__(self) -> None:
         if self.detector not in DETECTORS:
@@ -96,29 +96,44 @@ def detect(image_bgr: npt.NDArray[np.uint8], camera: CameraModel, cfg: FeatureCo
     return Features(xy, undistort_px(camera, xy), desc[order], colours)
 
 
+def index(b: Features, cfg: FeatureConfig) -> cv2.DescriptorMatcher:
+    """
+    A matcher trained on ``b``'s descriptors, to be queried by several keyframes: the k-d
+    trees of approximate matching are built once per keyframe instead of once per pair.
+    """
+    if b.descriptors.dtype == np.float32 and cfg.flann_checks > 0:
+        cv2.setRNGSeed(0)  # the k-d trees are randomised: the same input gives the same matches
+        matcher = cv2.FlannBasedMatcher({'algorithm': 1, 'trees': 4},
+                                        {'checks': cfg.flann_checks})
+    else:
+        matcher = cv2.BFMatcher(cv2.NORM_L2 if b.descriptors.dtype == np.float32
+                                else cv2.NORM_HAMMING)
+    if len(b.descriptors):
+        matcher.add([b.descriptors])
+        matcher.train()
+    return matcher
+
+
 def match(a: Features, b: Features, cfg: FeatureConfig,
-          b_subset: IndexArray | None = None) -> IndexArray:
+          b_subset: IndexArray | None = None,
+          b_index: cv2.DescriptorMatcher | None = None) -> IndexArray:
     """
     Ratio-test, mutually consistent matches (no geometric check yet).
 
     :param b_subset: match only these keypoints of ``b`` (indices), or all when None.
+    :param b_index: ``index(b, cfg)``, reused across calls (ignored with ``b_subset``).
     :returns: (M, 2) int64 index pairs into ``a`` and ``b``.
     """
     b_idx = np.arange(len(b.descriptors)) if b_subset is None else np.asarray(b_subset)
     if len(a.descriptors) < 2 or len(b_idx) < 2:
         return np.zeros((0, 2), np.int64)
-    if a.descriptors.dtype == np.float32 and cfg.flann_checks > 0:
-        cv2.setRNGSeed(0)  # the k-d trees are randomised: the same input gives the same matches
-        matcher = cv2.FlannBasedMatcher({'algorithm': 1, 'trees': 4},
-                                        {'checks': cfg.flann_checks})
+    if b_subset is None and b_index is not None:
+        knn = b_index.knnMatch(a.descriptors, k=2)
     else:
-        matcher = cv2.BFMatcher(cv2.NORM_L2 if a.descriptors.dtype == np.float32
-                                else cv2.NORM_HAMMING)
-    pairs = []
-    knn = matcher.knnMatch(a.descriptors, b.descriptors[b_idx], k=2)
-    for m, n in (p for p in knn if len(p) == 2):
-        if m.distance < cfg.ratio * n.distance:
-            pairs.append((m.queryIdx, int(b_idx[m.trainIdx])))
+        sub = Features(b.keypoints_px, b.points_px, b.descriptors[b_idx], b.colours_rgb)
+        knn = index(sub, cfg).knnMatch(a.descriptors, k=2)
+    pairs = [(m.queryIdx, int(b_idx[m.trainIdx])) for m, n in (p for p in knn if len(p) == 2)
+             if m.distance < cfg.ratio * n.distance]
     if not pairs:
         return np.zeros((0, 2), np.int64)
     out = np.array(pairs, np.int64)

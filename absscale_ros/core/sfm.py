@@ -14,7 +14,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from absscale_ros.core import errors, sfm_graph, sfm_map, sfm_vertices, twoview
+from absscale_ros.core import errors, landmark_quality, local_map, sfm_graph, sfm_map
+from absscale_ros.core import sfm_vertices, twoview
 from absscale_ros.core import features as feat
 from absscale_ros.core import vertex_matching as vm
 from absscale_ros.core.types import CameraModel
@@ -31,6 +32,9 @@ class SfmConfig:
     twoview_cfg: twoview.TwoViewConfig = field(default_factory=twoview.TwoViewConfig)
     graph_cfg: sfm_graph.GraphConfig = field(default_factory=sfm_graph.GraphConfig)
     vertex_cfg: vm.VertexMatchConfig = field(default_factory=vm.VertexMatchConfig)
+    local_cfg: local_map.LocalMapConfig = field(default_factory=local_map.LocalMapConfig)
+    cloud_cfg: landmark_quality.CloudConfig = field(
+        default_factory=landmark_quality.CloudConfig)  # what the published cloud keeps
     match_window: int = 3  # match each new keyframe against this many previous ones
     relocalise_window: int = 30  # keyframes tried when the recent ones do not register it
     min_pnp_inliers: int = 30
@@ -109,8 +113,7 @@ class IncrementalSfm:
             status, msg = self._try_initialise(seg, kf)
         else:
             status, msg = self._register(seg, kf)
-        if status in ('registered', 'relocalised') and \
-                len(seg.map.keyframes) % self.cfg.graph_cfg.batch_every == 0:
+        if status in ('registered', 'relocalised') and seg.graph.batch_due(len(seg.map.keyframes)):
             culled = seg.graph.batch(seg.map, self._progress)
             msg += f'; batch adjustment culled {culled} landmarks'
         return self._result(status, msg)
@@ -131,8 +134,9 @@ class IncrementalSfm:
                             m.reprojection_rms_px(self.K, recent), len(self.segments))
 
     def _verified(self, a: feat.Features, b: feat.Features,
-                  b_subset: npt.NDArray[np.int64] | None = None) -> npt.NDArray[np.int64]:
-        pairs = feat.match(a, b, self.cfg.feature_cfg, b_subset)
+                  b_subset: npt.NDArray[np.int64] | None = None,
+                  b_index: cv2.DescriptorMatcher | None = None) -> npt.NDArray[np.int64]:
+        pairs = feat.match(a, b, self.cfg.feature_cfg, b_subset, b_index)
         if len(pairs) == 0:
             return pairs
         ok = feat.verify(a.points_px[pairs[:, 0]], b.points_px[pairs[:, 1]],
@@ -186,12 +190,16 @@ class IncrementalSfm:
                 seg.map.keyframes[kf.kf_id] = kf
                 for lm_id, j in inliers:
                     seg.map.observe(lm_id, kf.kf_id, kf.features.points_px[j], j)
+                guided = local_map.search(seg.map, self.K, kf, (self.camera.width,
+                                                                self.camera.height),
+                                          self.cfg.local_cfg)
                 added = sum(self._triangulate(seg.map, n, kf, matches[n.kf_id])
                             for n in neighbours[:self.cfg.match_window])
                 sfm_vertices.link(seg.map, self.K, kf, neighbours[:self.cfg.match_window],
                                   self.cfg.twoview_cfg, self.cfg.vertex_cfg)
                 seg.graph.update(seg.map)
-                return status, f'{len(inliers)} PnP inliers, {added} new landmarks'
+                return status, (f'{len(inliers)} PnP inliers, {guided} more from the local map, '
+                                f'{added} new landmarks')
         if len(seg.map.keyframes) == 2:
             return self._restart(seg, kf)
         self._failures += 1
@@ -229,9 +237,10 @@ class IncrementalSfm:
         """
         free = np.ones(len(kf.features.points_px), bool)
         out = {}
+        kf_index = feat.index(kf.features, self.cfg.feature_cfg)
         for n in neighbours:
             subset = np.flatnonzero(free) if self.cfg.match_unclaimed_only else None
-            out[n.kf_id] = pairs = self._verified(n.features, kf.features, subset)
+            out[n.kf_id] = pairs = self._verified(n.features, kf.features, subset, kf_index)
             free[pairs[:, 1]] = False
         return out
 

@@ -1,6 +1,11 @@
 """
 GTSAM bundle adjustment of one map segment: iSAM2 per keyframe, periodic batch LM.
 
+After each batch iSAM2 starts again from the batch's estimate with only the newest ``window``
+keyframes free: older keyframes enter it (when a landmark they see is re-observed) held by a
+tight prior, so an update costs what the recent part of the map costs, not the whole map. Batches
+come every ``batch_every`` keyframes, and less often as the map grows (``batch_growth``).
+
 Keys: camera of keyframe ``i`` is ``X(i)``, landmark ``j`` is ``L(j)`` (``pose_key``,
 ``point_key``: the only mapping from ids to keys). Measurements are undistorted pixels, so the
 factors use ``Cal3_S2`` with the CameraInfo ``K``.
@@ -26,22 +31,28 @@ class GraphConfig:
     sigma_px: float = 1.0  # measurement noise of a feature, px
     vertex_weight: float = 2.0  # cost weight of target-vertex observations: sigma / sqrt(w)
     huber_k: float = 1.345  # Huber threshold in sigmas
-    batch_every: int = 10  # full Levenberg-Marquardt every this many keyframes
+    batch_every: int = 10  # full Levenberg-Marquardt at least this many keyframes apart
+    batch_growth: float = 0.25  # ... and only once the segment grew by this share since the last
     batch_iterations: int = 25
     cull_px: float = 3.0  # observations further than this after a batch are dropped
+    window: int = 10  # keyframes iSAM2 may move between batches; older ones are held
 
     def __post_init__(self) -> None:
         if min(self.sigma_px, self.vertex_weight, self.huber_k, self.cull_px) <= 0.0 or \
-                self.batch_every < 1 or self.batch_iterations < 1:
+                self.batch_every < 1 or self.batch_iterations < 1 or self.window < 2 or \
+                self.batch_growth < 0.0:
             raise ValueError(f'bad graph config {self}')
 
 
+_X, _L = X(0), L(0)  # symbol keys are chr << 56 | index: ids map to keys by one OR
+
+
 def pose_key(kf_id: int) -> int:
-    return X(kf_id)
+    return _X | kf_id
 
 
 def point_key(lm_id: int) -> int:
-    return L(lm_id)
+    return _L | lm_id
 
 
 class SegmentGraph:
@@ -55,22 +66,38 @@ class SegmentGraph:
             huber, gtsam.noiseModel.Isotropic.Sigma(2, cfg.sigma_px))
         self._vertex_noise = gtsam.noiseModel.Robust.Create(
             huber, gtsam.noiseModel.Isotropic.Sigma(2, cfg.sigma_px / np.sqrt(cfg.vertex_weight)))
+        self._held_noise = gtsam.noiseModel.Isotropic.Sigma(6, 1e-4)
+        self._last_batch_size = 0
         self._reset()
 
-    def _reset(self) -> None:
+    def _reset(self, free_from: int = -1) -> None:
+        """Empty iSAM2; keyframes with ids below ``free_from`` enter it held by a prior."""
         params = gtsam.ISAM2Params()
         params.setRelinearizeThreshold(0.01)
         self._isam = gtsam.ISAM2(params)
         self._factors: set[tuple[int, int]] = set()  # (kf_id, lm_id) already in iSAM2
         self._keys: set[int] = set()
-        self._gauge_done = False
+        self._free_from = free_from
+        self._gauge_done = free_from >= 0  # held keyframes fix the gauge
         self._all_pending = True  # next _new_terms looks at every landmark, not just dirty ones
 
-    def _factor(self, m: sfm_map.SfmMap, kf_id: int, lm_id: int) -> gtsam.NonlinearFactor:
-        lm = m.landmarks[lm_id]
+    def batch_due(self, keyframes: int) -> bool:
+        """Whether a segment of ``keyframes`` keyframes is due a full batch adjustment."""
+        since = keyframes - self._last_batch_size
+        return since >= max(self._cfg.batch_every, self._cfg.batch_growth * self._last_batch_size)
+
+    def _factor(self, lm: sfm_map.Landmark, kf_id: int, lm_id: int) -> gtsam.NonlinearFactor:
         noise = self._vertex_noise if lm.label is not None else self._noise
         return gtsam.GenericProjectionFactorCal3_S2(
-            gtsam.Point2(*lm.obs_px[kf_id]), noise, pose_key(kf_id), point_key(lm_id), self._cal)
+            lm.obs_px[kf_id], noise, pose_key(kf_id), point_key(lm_id), self._cal)
+
+    def _insert_pose(self, m: sfm_map.SfmMap, kf_id: int, graph: gtsam.NonlinearFactorGraph,
+                     values: gtsam.Values) -> None:
+        self._keys.add(pose_key(kf_id))
+        pose = gtsam.Pose3(m.keyframes[kf_id].T_world_cam)
+        values.insert(pose_key(kf_id), pose)
+        if kf_id < self._free_from:
+            graph.add(gtsam.PriorFactorPose3(pose_key(kf_id), pose, self._held_noise))
 
     def _gauge(self, m: sfm_map.SfmMap, graph: gtsam.NonlinearFactorGraph) -> None:
         """Fix the first pose and the distance to the second (7 gauge freedoms of monocular)."""
@@ -88,8 +115,12 @@ class SegmentGraph:
             self._gauge(m, graph)
             self._gauge_done = True
         # Only landmarks observed since the last call can bring new factors (O(new), not O(map)).
-        todo = list(m.landmarks) if self._all_pending else \
-            [i for i in m.dirty if i in m.landmarks]
+        if self._all_pending and self._free_from >= 0:  # the landmarks of the free keyframes
+            todo = [i for i, lm in m.landmarks.items()
+                    if max(lm.obs_px, default=-1) >= self._free_from]
+        else:
+            todo = list(m.landmarks) if self._all_pending else \
+                [i for i in m.dirty if i in m.landmarks]
         self._all_pending = False
         m.dirty.clear()
         for lm_id in todo:
@@ -101,10 +132,9 @@ class SegmentGraph:
                 if (kf_id, lm_id) in self._factors:
                     continue
                 self._factors.add((kf_id, lm_id))
-                graph.add(self._factor(m, kf_id, lm_id))
+                graph.add(self._factor(lm, kf_id, lm_id))
                 if pose_key(kf_id) not in self._keys:
-                    self._keys.add(pose_key(kf_id))
-                    values.insert(pose_key(kf_id), gtsam.Pose3(m.keyframes[kf_id].T_world_cam))
+                    self._insert_pose(m, kf_id, graph, values)
             if point_key(lm_id) not in self._keys:
                 self._keys.add(point_key(lm_id))
                 values.insert(point_key(lm_id), gtsam.Point3(*lm.point_world))
@@ -158,9 +188,12 @@ class SegmentGraph:
             progress('batch done', graph.error(result))
         self._write_back(m, result)
         culled = m.cull(np.array(self._cal.K()), self._cfg.cull_px)
-        self._reset()
+        ids = sorted(m.keyframes)
+        if len(ids) >= self._cfg.batch_every:  # the two-view start's own batch does not count
+            self._last_batch_size = len(ids)
+        self._reset(ids[-self._cfg.window] if len(ids) > self._cfg.window else -1)
         try:
             self.update(m, fallback=False)
         except RuntimeError:  # keep the LM estimate; the next keyframe restarts iSAM2
-            self._reset()
+            self._reset(self._free_from)
         return culled

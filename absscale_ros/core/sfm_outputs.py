@@ -11,7 +11,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
-from absscale_ros.core import sfm, sfm_map
+from absscale_ros.core import landmark_quality, sfm, sfm_map
 from absscale_ros.core import vertex_matching as vm
 
 FloatArray = npt.NDArray[np.float64]
@@ -47,6 +47,14 @@ def best_segment(engine: sfm.IncrementalSfm) -> sfm.Segment:
         vertices = sum(lm.label is not None for lm in seg.map.landmarks.values())
         return vertices >= 3, len(seg.map.keyframes), i
     return max(enumerate(engine.segments), key=key)[1]
+
+
+def cloud(m: sfm_map.SfmMap, K: FloatArray,
+          cfg: landmark_quality.CloudConfig) -> tuple[FloatArray, npt.NDArray[np.uint8]]:
+    """(N, 3) well-triangulated landmarks (SfM units) and their (N, 3) uint8 RGB colours."""
+    lms = [m.landmarks[i] for i in landmark_quality.well_triangulated(m, K, cfg)]
+    return (np.array([lm.point_world for lm in lms]).reshape(-1, 3),
+            np.array([lm.colour_rgb for lm in lms], np.uint8).reshape(-1, 3))
 
 
 def path(m: sfm_map.SfmMap) -> tuple[npt.NDArray[np.int64], FloatArray]:

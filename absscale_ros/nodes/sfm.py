@@ -7,7 +7,8 @@ worth scaling (``core/sfm_outputs.best_segment``): ``/absscale/sparse_cloud`` (x
 units), ``/absscale/keyframe_path`` (nav_msgs/Path, T_world_cam per keyframe),
 ``/absscale/target_points`` (x y z object_id vertex_id n_obs angle_deg target_type) and
 ``/diagnostics``. Parameters: the scalars of ``SfmConfig`` and its stages as ``features.*``,
-``twoview.*``, ``graph.*``, ``vertices.*``.
+``twoview.*``, ``graph.*``, ``vertices.*``, ``local_map.*``, ``cloud.*`` (which landmarks are
+published).
 """
 from dataclasses import fields, is_dataclass, replace
 import time
@@ -23,7 +24,8 @@ from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 STAGES = {'features': 'feature_cfg', 'twoview': 'twoview_cfg', 'graph': 'graph_cfg',
-          'vertices': 'vertex_cfg'}  # parameter prefix -> SfmConfig field
+          'vertices': 'vertex_cfg', 'local_map': 'local_cfg',
+          'cloud': 'cloud_cfg'}  # parameter prefix -> SfmConfig field
 
 
 class SfmNode(Node):
@@ -105,7 +107,7 @@ class SfmNode(Node):
     def _publish(self, stamp_ns: int) -> list[str]:
         assert self.engine is not None
         m = sfm_outputs.best_segment(self.engine).map
-        xyz, rgb = m.cloud()
+        xyz, rgb = sfm_outputs.cloud(m, self.engine.K, self._cfg.cloud_cfg)
         stamps, poses = sfm_outputs.path(m)
         tp = sfm_outputs.target_points(m)
         msgs = {'sparse_cloud': conversions.xyz_rgb_to_cloud_msg(xyz, rgb, stamp_ns, self._frame),

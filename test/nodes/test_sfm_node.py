@@ -3,7 +3,7 @@ from pathlib import Path
 import sys
 
 from absscale_ros import conversions
-from absscale_ros.core import detect, replay, sfm
+from absscale_ros.core import detect, replay, sfm, sfm_outputs
 from absscale_ros.core.types import CameraModel
 from absscale_ros.nodes import common
 from absscale_ros.nodes.sfm import SfmNode
@@ -96,7 +96,11 @@ def test_map_topics_match_the_core_and_every_input_is_acknowledged(context) -> N
     assert list(pose_stamps) == [engine.current.map.keyframes[i].stamp_ns for i in ids]
     assert np.allclose(poses[:, :3], T[:, :3, 3], atol=1e-5)
     cloud = conversions.cloud_msg_to_array(probe.got[OUTPUTS[0]][-1])
-    assert len(cloud) == len(engine.current.map.landmarks) and 'rgb' in cloud.dtype.names
+    # Only the well-triangulated landmarks are published (``cloud.*`` parameters).
+    xyz, _ = sfm_outputs.cloud(engine.current.map, engine.K, sfm.SfmConfig().cloud_cfg)
+    assert 0 < len(cloud) == len(xyz) < len(engine.current.map.landmarks)
+    assert 'rgb' in cloud.dtype.names
+    assert np.allclose(np.stack([cloud[a] for a in 'xyz'], axis=1), xyz, atol=1e-4)
     targets = conversions.cloud_msg_to_array(probe.got[OUTPUTS[2]][-1])
     assert len(targets) >= 3 and set(targets['target_type']) == {0}
     assert np.all(targets['n_obs'] >= 2) and np.all(targets['angle_deg'] > 1.0)
@@ -106,7 +110,7 @@ def test_map_topics_match_the_core_and_every_input_is_acknowledged(context) -> N
     assert r['target_vertices'] == len(targets)
     status = probe.diags[-1].status[0]
     assert status.level == b'\x00' and conversions.diagnostic_values(status)['landmarks'] == \
-        str(len(cloud))
+        str(len(engine.current.map.landmarks))
 
 
 @pytest.mark.parametrize('rotate_only', [True, False])

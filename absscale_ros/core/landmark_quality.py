@@ -1,0 +1,65 @@
+"""
+Which landmarks of a map are well triangulated: enough views, a wide enough angle between
+them, and a small reprojection error in every view. Only these are published, so that lengths
+measured between published points are trustworthy (the paper's Table 3); the map itself keeps
+the rest (they still help register the next keyframes).
+"""
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from absscale_ros.core import sfm_map
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class CloudConfig:
+    """Thresholds a landmark must pass to be published."""
+
+    min_observations: int = 3  # keyframes that see it
+    min_angle_deg: float = 2.0  # widest angle between two of its viewing rays, degrees
+    max_reproj_px: float = 1.5  # largest reprojection error over its observations, px
+
+    def __post_init__(self) -> None:
+        if self.min_observations < 2 or self.min_angle_deg < 0.0 or self.max_reproj_px <= 0.0:
+            raise ValueError(f'bad cloud config {self}')
+
+
+def well_triangulated(m: sfm_map.SfmMap, K: FloatArray, cfg: CloudConfig) -> list[int]:
+    """Ids of the landmarks of ``m`` that pass ``cfg``, in the map's order."""
+    ids = [i for i, lm in m.landmarks.items() if len(lm.obs_px) >= cfg.min_observations]
+    if not ids:
+        return []
+    lms = [m.landmarks[i] for i in ids]
+    counts = np.array([len(lm.obs_px) for lm in lms])
+    kf_ids = [k for lm in lms for k in lm.obs_px]
+    uv = np.array([x for lm in lms for x in lm.obs_px.values()])
+    T = np.array([m.keyframes[k].T_world_cam for k in kf_ids])
+    pts = np.repeat(np.array([lm.point_world for lm in lms]), counts, axis=0)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    p_cam = np.einsum('nji,nj->ni', T[:, :3, :3], pts - T[:, :3, 3])
+    with np.errstate(divide='ignore', invalid='ignore'):
+        err = np.linalg.norm(p_cam[:, :2] / p_cam[:, 2:] @ K[:2, :2].T + K[:2, 2] - uv, axis=1)
+    err[~(p_cam[:, 2] > 0.0)] = np.inf
+    ok = np.maximum.reduceat(err, starts) <= cfg.max_reproj_px
+    return [i for i, good in zip(ids, ok & (_widest_angles_deg(pts, T, counts, starts) >=
+                                            cfg.min_angle_deg)) if good]
+
+
+def _widest_angles_deg(pts: FloatArray, T: FloatArray, counts: npt.NDArray[np.int64],
+                       starts: npt.NDArray[np.int64]) -> FloatArray:
+    """
+    Widest ray angle per landmark (observations grouped by landmark): from the ray furthest
+    from the group's mean direction to the ray furthest from it, which is the widest pair
+    when the cameras lie along a path (exact for rays in one plane).
+    """
+    rays = pts - T[:, :3, 3]
+    rays /= np.maximum(np.linalg.norm(rays, axis=1, keepdims=True), 1e-12)
+    group = np.repeat(np.arange(len(counts)), counts)
+    mean = np.add.reduceat(rays, starts)[group]
+    order = np.lexsort((np.sum(rays * mean, axis=1), group))  # by group, then by closeness
+    first = order[starts]  # the ray least aligned with its group's mean
+    cos = np.minimum.reduceat(np.sum(rays * rays[first][group], axis=1), starts)
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))

@@ -1,0 +1,96 @@
+"""
+Guided search of the local map (covisibility registration).
+
+Feature matching links a new keyframe only to the few newest keyframes. Once its pose is known,
+the landmarks seen by a wider window of recent keyframes are projected into it and matched by
+descriptor near their predicted position, so tracks get longer and keyframes further apart are
+tied together directly: on fast stretches with few shared points per pair, short tracks let
+the map's scale drift.
+"""
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+from scipy.spatial import cKDTree
+
+from absscale_ros.core import sfm_map, twoview
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class LocalMapConfig:
+    """Window and acceptance of the guided search."""
+
+    keyframes: int = 10  # landmarks of this many newest keyframes are looked for (0: off)
+    radius_px: float = 4.0  # a keypoint this close to a landmark's projection is a candidate
+    ratio: float = 0.8  # best descriptor distance under this share of the second best
+    max_distance: float = 200.0  # ... and under this (SIFT L2, 90 % of verified matches)
+
+    def __post_init__(self) -> None:
+        if self.keyframes < 0 or self.radius_px <= 0.0 or not 0.0 < self.ratio <= 1.0 or \
+                self.max_distance <= 0.0:
+            raise ValueError(f'bad local map config {self}')
+
+
+def _landmark_descriptors(m: sfm_map.SfmMap, recent: list[sfm_map.MapKeyframe],
+                          skip: set[int]) -> tuple[npt.NDArray[np.int64], FloatArray]:
+    """Landmarks seen by ``recent`` (newest first) minus ``skip``; each with its newest
+    descriptor."""
+    ids, descs, seen = [], [], set(skip)
+    for kf in recent:
+        idx = np.flatnonzero(kf.landmark_of >= 0)
+        lms = kf.landmark_of[idx]
+        new = np.array([int(lm) not in seen and int(lm) in m.landmarks for lm in lms], bool)
+        if not new.any():
+            continue
+        ids.append(lms[new])
+        descs.append(kf.features.descriptors[idx[new]])
+        seen.update(lms[new].tolist())
+    if not ids:
+        return np.zeros(0, np.int64), np.zeros((0, 128), np.float32)
+    return np.concatenate(ids), np.concatenate(descs)
+
+
+def search(m: sfm_map.SfmMap, K: FloatArray, kf: sfm_map.MapKeyframe, size: tuple[int, int],
+           cfg: LocalMapConfig) -> int:
+    """
+    Add observations of local-map landmarks to the registered keyframe ``kf`` (in ``m``).
+
+    :param size: image (width, height), px.
+    :returns: observations added.
+    """
+    recent = [m.keyframes[i] for i in sorted(m.keyframes, reverse=True)
+              if i != kf.kf_id][:cfg.keyframes]
+    free = np.flatnonzero(kf.landmark_of < 0)
+    if not recent or not len(free) or kf.features.descriptors.dtype != np.float32:  # SIFT only
+        return 0
+    lm_ids, descs = _landmark_descriptors(m, recent, {int(i) for i in kf.landmark_of if i >= 0})
+    if not len(lm_ids):
+        return 0
+    uv = twoview.project(K, kf.T_world_cam, np.array([m.landmarks[int(i)].point_world
+                                                      for i in lm_ids]))
+    inside = np.all(np.isfinite(uv), axis=1) & (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & \
+        (uv[:, 0] < size[0]) & (uv[:, 1] < size[1])
+    cand = np.flatnonzero(inside)
+    near = cKDTree(kf.features.points_px[free]).query_ball_point(uv[cand], cfg.radius_px)
+    counts = np.array([len(n) for n in near], np.int64)
+    if not counts.sum():
+        return 0
+    li = np.repeat(cand, counts)  # (landmark row, free keypoint) candidate pairs
+    kj = free[np.concatenate([np.asarray(n, np.int64) for n in near])]
+    dist = np.linalg.norm(descs[li].astype(np.float32) -
+                          kf.features.descriptors[kj].astype(np.float32), axis=1)
+    order = np.lexsort((dist, li))
+    li, kj, dist = li[order], kj[order], dist[order]
+    first = np.flatnonzero(np.r_[True, li[1:] != li[:-1]])
+    second = np.where(first + 1 < len(li), first + 1, first)
+    has_second = (second != first) & (li[second] == li[first])
+    ok = (dist[first] < cfg.max_distance) & \
+        (~has_second | (dist[first] < cfg.ratio * dist[second]))
+    best = first[ok]
+    best = best[np.argsort(dist[best], kind='stable')]  # a keypoint goes to its closest landmark
+    _, keep = np.unique(kj[best], return_index=True)
+    for b in best[keep]:
+        m.observe(int(lm_ids[li[b]]), kf.kf_id, kf.features.points_px[kj[b]], int(kj[b]))
+    return len(keep)

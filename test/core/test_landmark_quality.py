@@ -1,0 +1,57 @@
+"""
+The published-landmark filter on a map reconstructed from rendered keyframes: it keeps exactly
+the landmarks an independent (slow, exact) check accepts.
+"""
+from pathlib import Path
+import sys
+
+import numpy as np
+import pytest
+
+from absscale_ros.core import landmark_quality, sfm, sfm_outputs
+
+sys.path.insert(0, str(Path(__file__).parent))
+import sfm_scenes  # noqa: E402
+
+
+@pytest.fixture(scope='module')
+def engine() -> sfm.IncrementalSfm:
+    seq = sfm_scenes.make_sequence('indoor_paper', 0, count=8)
+    eng = sfm.IncrementalSfm(seq.camera, sfm.SfmConfig(), np.random.default_rng(7))
+    for k, img in enumerate(seq.images_bgr):
+        eng.add_keyframe(k, img)
+    eng.finish()
+    return eng
+
+
+def test_filter_matches_an_exact_check(engine: sfm.IncrementalSfm) -> None:
+    m, K = engine.current.map, engine.K
+    cfg = landmark_quality.CloudConfig(min_observations=3, min_angle_deg=2.0, max_reproj_px=1.0)
+    kept = set(landmark_quality.well_triangulated(m, K, cfg))
+    worst: dict[int, float] = {}
+    for lm_id, _, err in m.residuals_px(K):
+        worst[lm_id] = max(worst.get(lm_id, 0.0), err)
+    borderline, want = 0, set()
+    for lm_id, lm in m.landmarks.items():
+        centres = np.array([m.keyframes[k].T_world_cam[:3, 3] for k in lm.obs_px])
+        angle = sfm_outputs.widest_angle_deg(lm.point_world, centres)
+        borderline += abs(angle - cfg.min_angle_deg) < 0.05
+        if len(lm.obs_px) >= 3 and angle >= cfg.min_angle_deg and worst[lm_id] <= 1.0:
+            want.add(lm_id)
+    # Every test is exercised: some landmarks fail, most pass.
+    assert 0.3 * len(m.landmarks) < len(want) < len(m.landmarks)
+    assert len(kept ^ want) <= borderline  # the angle is estimated, exact along a path
+    xyz, rgb = sfm_outputs.cloud(m, K, cfg)
+    assert xyz.shape == (len(kept), 3) and rgb.shape == (len(kept), 3) and rgb.dtype == np.uint8
+
+
+def test_thresholds_only_remove(engine: sfm.IncrementalSfm) -> None:
+    m, K = engine.current.map, engine.K
+    loose = landmark_quality.CloudConfig(min_observations=2, min_angle_deg=0.0,
+                                         max_reproj_px=1e9)
+    assert len(landmark_quality.well_triangulated(m, K, loose)) == len(m.landmarks)
+    counts = [len(landmark_quality.well_triangulated(m, K, landmark_quality.CloudConfig(
+        min_observations=3, min_angle_deg=a))) for a in (0.0, 15.0, 30.0)]
+    assert counts[0] > counts[1] > counts[2]
+    with pytest.raises(ValueError):
+        landmark_quality.CloudConfig(min_observations=1)
