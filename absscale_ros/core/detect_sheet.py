@@ -152,13 +152,14 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
     work = sheet_candidates.shrink(image_bgr, scale)
     found: list[Found] = []
     band = max(6.0, 3.0 / scale)
-    quads_, pents = sheet_candidates.candidates(work, cfg)
+    quads_, regions = sheet_candidates.candidates(work, cfg)
     for quad in quads_:
         _accept(image_bgr, (quad + 0.5) / scale - 0.5, band, cfg, K, found)
     if not found and cfg.line_candidates:
         for quad_full, line_band in _line_candidates(image_bgr, cfg):
             _accept(image_bgr, quad_full, line_band, cfg, K, found)
-    if not found:
+    if not found and cfg.min_seen < 1.0:
+        pents = sheet_candidates.pentagons(work, regions, cfg)
         _accept_partial(image_bgr, [(p + 0.5) / scale - 0.5 for p in pents], band, cfg, K, found)
     found.sort(key=lambda f: -f[0])
     return [_detection(f, cfg.model()) for f in found]
@@ -202,7 +203,8 @@ def _accept(image_bgr: npt.NDArray[np.uint8], quad_full: Array, band: float, cfg
     if _tile(image_bgr, quad_full, cfg):
         return  # cheaper than refining it first
     refined = refine_quad(image_bgr, quad_full, band)
-    if refined is not None and _passes(image_bgr, refined, cfg, K) and \
+    if refined is not None and _big_enough(refined[0], image_bgr.shape, cfg) and \
+            _passes(image_bgr, refined, cfg, K) and \
             all(np.abs(refined[0] - f[1]).max() > 4.0 for f in found):
         found.append((float(refined[1].mean()), refined[0], refined[0], None))
 
@@ -218,14 +220,15 @@ def _accept_partial(image_bgr: npt.NDArray[np.uint8], pents: list[Array], band: 
     for pent in pents:
         best: Found | None = None
         for hyp in sheet_partial.hypotheses(pent, cfg.min_seen):
-            if sheet_candidates.touches_border(hyp.corners[:3], image_bgr.shape, band):
-                continue  # the three seen corners must be inside the image
+            if sheet_candidates.touches_border(hyp.corners, image_bgr.shape, band):
+                continue  # a corner beyond the border: no occluder to show for the cut (tiles)
             if not _aspect_ok(hyp.corners, image_bgr.shape, cfg, K, cfg.rough_aspect_tol):
                 continue  # rough corners: a looser test here, the exact one after refinement
             if _tile(image_bgr, hyp.corners, cfg, hyp.seen_ends):
                 continue
             out = sheet_partial.refine(image_bgr, hyp, band)
-            if out is None or not _passes(image_bgr, out[:5], cfg, K, hyp.seen_ends):
+            if out is None or not _big_enough(out[5], image_bgr.shape, cfg) or \
+                    not _passes(image_bgr, out[:5], cfg, K, hyp.seen_ends):
                 continue
             support = float(out[1].mean())
             vs = np.array([support] * 3 + [0.5 * support * float(hyp.seen_frac.min())])
@@ -233,6 +236,12 @@ def _accept_partial(image_bgr: npt.NDArray[np.uint8], pents: list[Array], band: 
                 best = (float(vs.mean()), out[0], out[5], vs)
         if best is not None and all(np.abs(best[1] - f[1]).max() > 4.0 for f in found):
             found.append(best)
+
+
+def _big_enough(outline: Array, shape: tuple[int, ...], cfg: SheetConfig) -> bool:
+    """Return True when the seen outline (K, 2) covers at least ``min_area_frac`` of the image."""
+    area = cv2.contourArea(outline.astype(np.float32))
+    return bool(area >= cfg.min_area_frac * shape[0] * shape[1])
 
 
 def _passes(image_bgr: npt.NDArray[np.uint8], refined: Refined, cfg: SheetConfig,
@@ -255,12 +264,15 @@ def _passes(image_bgr: npt.NDArray[np.uint8], refined: Refined, cfg: SheetConfig
 
 def _tile(image_bgr: npt.NDArray[np.uint8], corners: Array, cfg: SheetConfig,
           seen_ends: Array | None = None) -> bool:
-    """Return True when the colour recovers beyond too many sides: a tile between grout."""
+    """
+    Return True when the colour recovers beyond too many sides: a tile between grout. Looked
+    for at two reaches: a blurred grout line is wider than the first.
+    """
     ends = np.stack([corners, np.roll(corners, -1, axis=0)], axis=1)
     ends = ends if seen_ends is None else seen_ends
     side_px = float(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1).mean())
     ls = np.array([lines.line_through(a, b, corners.mean(axis=0)) for a, b in ends])
-    ridges = sides.ridge_ratio(image_bgr, ls, ends, max(8.0, 0.08 * side_px))
+    ridges = sides.ridge_ratio(image_bgr, ls, ends, max(8.0, 0.08 * side_px), reaches=(1.0, 2.0))
     return int((ridges > cfg.ridge_ratio).sum()) > cfg.max_ridges
 
 

@@ -19,6 +19,14 @@ if TYPE_CHECKING:
     from absscale_ros.core.detect_sheet import SheetConfig
 
 Array = npt.NDArray[np.float64]
+Region = tuple[npt.NDArray[np.int32], float]  # a contour, and how far its outline lies outside
+ROUGH_AREA_SLACK = 0.7  # rough regions may be this much smaller than the area threshold
+FREE_MASK = 3  # index of the edge-free regions in ``masks``
+SAT_SLACK = 0.1  # the region's mean colour may be this much more saturated than its sides'
+RING_PX = (3, 7)  # the ring around a region for its contrast, work px (past a blurred edge)
+RING_CONTRAST = 2.0  # of ``min_contrast``; sheets in the simulator show 4x or more
+PENT_MIN_SOLIDITY = 0.75  # a region with a corner cut off by an occluder's notch is less convex
+FREE_INSET_PX = 2.0  # a 3x3-dilated Canny line keeps edge-free regions this far inside
 
 
 def shrink(image: npt.NDArray[np.uint8], scale: float) -> npt.NDArray[np.uint8]:
@@ -72,33 +80,91 @@ def masks(work_bgr: npt.NDArray[np.uint8], work_white: npt.NDArray[np.uint8],
 
 
 def candidates(work_bgr: npt.NDArray[np.uint8], cfg: 'SheetConfig'
-               ) -> tuple[list[Array], list[Array]]:
+               ) -> tuple[list[Array], list[Region]]:
     """
-    Return rough (4, 2) quadrilaterals and (5, 2) pentagons (a sheet with a corner hidden),
-    work-image px, from the candidate masks.
+    Return rough (4, 2) quadrilaterals, work-image px, from the candidate masks, and every
+    large unsaturated region (for ``pentagons``: only needed when no quadrilateral passes).
     """
     work_white = whiteness(work_bgr)
-    min_area = cfg.min_area_frac * work_white.shape[0] * work_white.shape[1]
+    # Opening and the contour through boundary pixel centres shrink a small region by a pixel
+    # all round: a loose test here, the exact one on the refined full-resolution corners.
+    min_area = ROUGH_AREA_SLACK * cfg.min_area_frac * work_white.shape[0] * work_white.shape[1]
     kernel = np.ones((3, 3), np.uint8)
     quads: list[Array] = []
-    pents: list[Array] = []
-    for mask in masks(work_bgr, work_white, cfg):
+    seen: list[Array] = []
+    regions: list[Region] = []
+    for i, mask in enumerate(masks(work_bgr, work_white, cfg)):
         # Closing heals thin dark lines across the sheet (text, a cable); the paper's 3x3
         # opening, twice, then drops thin bridges to neighbouring objects.
         mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8))
         mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, kernel, iterations=2)
-        contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-        for c in contours:
-            if cfg.min_seen < 1.0 and cv2.contourArea(c) >= min_area:
-                pent = sheet_partial.pentagon(c)  # a corner cut off: tried if nothing else is
-                if pent is not None and all(np.abs(pent - q).max() > 2.0 for q in pents):
-                    pents.append(pent)
-            quad = shape_ok(c, min_area, cfg)
+        contours, tree = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+        # An edge-free region stops short of the outline by the dilated edge's half width.
+        grow = FREE_INSET_PX if i == FREE_MASK else 0.0
+        for c, node in zip(contours, tree[0] if tree is not None else ()):
+            solidity = region_shape(c, min_area, cfg)
+            if solidity < PENT_MIN_SOLIDITY:
+                continue  # too small, too round or too long, or far from convex
+            regions.append((c, grow))
+            quad = lines.rough_quad(c) if solidity >= cfg.min_solidity else None
+            quad = None if quad is None else offset(quad, grow)
             if quad is None or touches_border(quad, work_white.shape):
                 continue  # a sheet cut by the image border has no trustworthy corners
-            if all(np.abs(quad - q).max() > 2.0 for q in quads):
-                quads.append(quad)
-    return quads, pents
+            if all(np.abs(quad - q).max() > 2.0 for q in seen):
+                seen.append(quad)  # another mask's outline of it is not tested again
+                if plausible(work_bgr, c, cfg):
+                    quads.append(quad)
+    return quads, regions
+
+
+def pentagons(work_bgr: npt.NDArray[np.uint8], regions: list[Region], cfg: 'SheetConfig'
+              ) -> list[Array]:
+    """Return the distinct (5, 2) pentagons (a sheet with a corner cut off) of ``regions``."""
+    pents: list[Array] = []
+    seen: list[Array] = []
+    for contour, grow in regions:
+        pent = sheet_partial.pentagon(contour)
+        pent = None if pent is None else offset(pent, grow)
+        if pent is not None and all(np.abs(pent - q).max() > 2.0 for q in seen):
+            seen.append(pent)
+            if plausible(work_bgr, contour, cfg):
+                pents.append(pent)
+    return pents
+
+
+def plausible(work_bgr: npt.NDArray[np.uint8], contour: npt.NDArray[np.int32],
+              cfg: 'SheetConfig') -> bool:
+    """
+    Return True when a region's mean colour is unsaturated enough and differs from the ring
+    just around it: cheap work-image versions of the detector's one-colour and contrast tests,
+    so wood, coloured objects and floor tiles (the same colour beyond the grout) go before
+    the full-resolution refinement.
+    """
+    x, y, w, h = cv2.boundingRect(contour)
+    m = RING_PX[1]
+    x0, y0 = max(x - m, 0), max(y - m, 0)
+    x1, y1 = min(x + w + m, work_bgr.shape[1]), min(y + h + m, work_bgr.shape[0])
+    inside = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    cv2.drawContours(inside, [contour - np.array([x0, y0], np.int32)], 0, 1, -1)
+    near = cv2.dilate(inside, _disc(RING_PX[0]))
+    far = cv2.dilate(inside, _disc(m))
+    roi = work_bgr[y0:y1, x0:x1]
+    mean_in = np.array(cv2.mean(roi, inside)[:3])
+    if mean_in.max() - mean_in.min() > (cfg.max_saturation + SAT_SLACK) * max(mean_in.max(), 1.0):
+        return False
+    ring = np.median(roi[(far > near)], axis=0)  # the median skips a grout line in the ring
+    return bool(np.linalg.norm(mean_in - ring) >= RING_CONTRAST * cfg.min_contrast)
+
+
+def offset(poly: Array, dist_px: float) -> Array | None:
+    """Return a convex polygon (N, 2) with every side moved ``dist_px`` outwards, or None."""
+    if dist_px == 0.0:
+        return poly
+    centre = poly.mean(axis=0)
+    ls = [lines.line_through(a, b, centre) - np.array([0.0, 0.0, dist_px])
+          for a, b in zip(poly, np.roll(poly, -1, axis=0))]
+    out = [lines.intersect(ls[k - 1], ls[k]) for k in range(len(ls))]
+    return None if any(p is None for p in out) else np.array(out)
 
 
 def touches_border(quad: Array, shape: tuple[int, ...], margin: float = 1.5) -> bool:
@@ -108,15 +174,19 @@ def touches_border(quad: Array, shape: tuple[int, ...], margin: float = 1.5) -> 
                 or (quad[:, 1].max() > h - 1 - margin))
 
 
-def shape_ok(contour: npt.NDArray[np.int32], min_area: float,
-             cfg: 'SheetConfig') -> Array | None:
-    """Apply the area, roundness (eq. 1) and convexity tests; return the rough quad or None."""
+def region_shape(contour: npt.NDArray[np.int32], min_area: float, cfg: 'SheetConfig') -> float:
+    """
+    Apply the area and roundness (eq. 1) tests; return the region's area over its convex hull
+    area (solidity, the convexity test) when they pass, else 0.
+    """
     area = cv2.contourArea(contour)
     if area < min_area:
-        return None
+        return 0.0
     roundness = 4.0 * np.pi * area / max(cv2.arcLength(contour, True), 1e-9) ** 2  # eq. 1
     if not cfg.roundness_min <= roundness <= cfg.roundness_max:
-        return None
-    if area < cfg.min_solidity * cv2.contourArea(cv2.convexHull(contour)):
-        return None
-    return lines.rough_quad(contour)
+        return 0.0
+    return area / max(cv2.contourArea(cv2.convexHull(contour)), 1e-9)
+
+
+def _disc(radius: int) -> npt.NDArray[np.uint8]:
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))

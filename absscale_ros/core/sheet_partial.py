@@ -1,8 +1,10 @@
 """
-Sheet hypotheses with one corner hidden (by an object on the sheet, or outside the image).
+Sheet hypotheses with one corner hidden by an object on the sheet.
 
 A sheet with one corner covered is a five-sided region: two whole sides, the two sides next
-to the hidden corner seen only in part, and the occluder's (or the image border's) cut. Every
+to the hidden corner seen only in part, and the occluder's cut. (A corner beyond the image
+border is not extrapolated: the border shows no occluder, and floor tiles cut by it would
+pass every other test.) Every
 side of the region's simplified convex hull is tried as the cut: the two sides next to it,
 extended, meet at the hidden corner. A hypothesis is kept when that corner lies beyond the
 cut and each extended side is seen over at least ``min_seen`` of its length; the detector then

@@ -145,7 +145,7 @@ def refine(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
 
 
 def ridge_ratio(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array, band_px: float,
-                n: int = 16) -> Array:
+                n: int = 16, reaches: tuple[float, ...] = (1.0,)) -> Array:
     """
     Return (S,) how far the colour recovers beyond each refined side: near 0 for a step edge
     (a sheet on a desk: the desk goes on), near 1 for a thin line between two surfaces alike
@@ -156,13 +156,20 @@ def ridge_ratio(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array, ba
     Colour distances, so a step in tint alone is measured like one in brightness.
 
     :param band_px: how far inside and outside the profiles reach, px.
+    :param reaches: band multiples to measure at, from one sampling; the largest ratio is
+        returned (a blurred grout line is wider than the first reach).
     """
-    _, offs, samples = _profiles(image_bgr, lines_, ends, band_px, n)
+    top = max(reaches)
+    _, offs, samples = _profiles(image_bgr, lines_, ends, top * band_px, n)
     prof = np.median(samples, axis=1)  # (S, K, 3)
-    inside = np.median(prof[:, offs < -0.5 * band_px], axis=1)
-    far = np.median(prof[:, offs >= 0.6 * band_px], axis=1)
-    out = prof[:, offs > 0.5]
-    k = np.argmax(np.linalg.norm(out - inside[:, None], axis=2), axis=1)
-    extreme = out[np.arange(len(out)), k]
-    return np.linalg.norm(far - extreme, axis=1) / \
-        np.maximum(np.linalg.norm(inside - extreme, axis=1), 1.0)
+    out = np.zeros(len(lines_))
+    for r in reaches:
+        band = r * band_px
+        inside = np.median(prof[:, (offs < -0.5 * band) & (offs >= -band)], axis=1)
+        far = np.median(prof[:, (offs >= 0.6 * band) & (offs <= band)], axis=1)
+        near = (offs > 0.5) & (offs <= band)
+        k = np.argmax(np.linalg.norm(prof[:, near] - inside[:, None], axis=2), axis=1)
+        extreme = prof[:, near][np.arange(len(prof)), k]
+        out = np.maximum(out, np.linalg.norm(far - extreme, axis=1)
+                         / np.maximum(np.linalg.norm(inside - extreme, axis=1), 1.0))
+    return out
