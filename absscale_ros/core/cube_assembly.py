@@ -77,8 +77,9 @@ def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks:
                 edges.add((min(v, w), max(v, w)))
     vertices = np.array([lines.nearest_point(np.array(ls)) for ls in meeting])
     posing = [_posing(f) for f in faces]
-    keep = cube_geometry.explained(vertices, list(np.flatnonzero(posing)),
-                                   [f.corners_px for f in faces], Ks, shape_tol_frac)
+    keep, proj = cube_geometry.explained(vertices, list(np.flatnonzero(posing)),
+                                         [f.corners_px for f in faces],
+                                         [f.thin for f in faces], Ks, shape_tol_frac)
     h, w = shape[:2]
     keep &= (vertices >= BORDER_PX).all(axis=1) & (vertices[:, 0] <= w - 1 - BORDER_PX) & (
         vertices[:, 1] <= h - 1 - BORDER_PX)
@@ -99,7 +100,9 @@ def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks:
         for k, v in enumerate(same[np.argsort(ang[same])]):
             ids[v] = targets.cube_vertex_id(int(m), k)
     score = float(np.mean([f.supports.mean() for f in faces]))
-    polygons = tuple((f.colour, f.corners_px) for f in faces)
+    # A strip's ends follow the cube's edges where a believed pose puts them.
+    polygons = tuple((f.colour, cube_geometry.complete_strip(proj, f.corners_px)
+                      if f.thin and proj is not None else f.corners_px) for f in faces)
     return targets.TargetDetection(
         target_type='cube', name='cube', vertices_px=vertices, vertex_ids=ids,
         edges=np.array(sorted(edges), dtype=np.int64).reshape(-1, 2), polygons=polygons,

@@ -67,45 +67,49 @@ def shown_sides(proj: Array) -> list[npt.NDArray[np.float32]]:
             for s, a in zip(_SIDES, areas[1:]) if a * areas[0] > 0.0]
 
 
-def agrees(shown: list[npt.NDArray[np.float32]], found: npt.NDArray[np.float32]) -> bool:
+def agrees(shown: list[npt.NDArray[np.float32]], found: npt.NDArray[np.float32],
+           whole: bool) -> bool:
     """
     Return True when the convex outline ``found`` outlines one of the ``shown`` side faces,
-    or lies within one (the visible part of a face an occluder cuts).
+    or, for a ``whole`` (not edge-on) face, lies within one (the visible part of a face an
+    occluder cuts; a strip along a side lies within too many faces to tell).
     """
     area = cv2.contourArea(found)
     for poly in shown:
         inter = cv2.intersectConvexConvex(poly, found)[0]
         iou = inter / max(cv2.contourArea(poly) + area - inter, 1e-9)
-        if iou >= MIN_IOU or inter >= MIN_INSIDE * area:
+        if iou >= MIN_IOU or (whole and inter >= MIN_INSIDE * area):
             return True
     return False
 
 
-def explained(vertices_px: Array, posing: list[int], polygons: list[Array], Ks: list[Array],
-              tol_frac: float) -> npt.NDArray[np.bool_]:
+def explained(vertices_px: Array, posing: list[int], polygons: list[Array], thin: list[bool],
+              Ks: list[Array], tol_frac: float) -> tuple[npt.NDArray[np.bool_], Array | None]:
     """
     Return (V,) True for vertices that every believed single-face cube pose explains, with
-    the camera of ``Ks`` (several when the focal length is unknown) that explains the most.
+    the camera of ``Ks`` (several when the focal length is unknown) that explains the most,
+    and the (8, 2) projected cube of the believed pose that explains the most (or None).
 
     :param vertices_px: (V, 2) assembled cube vertices.
     :param posing: indices into ``polygons`` of the faces that pose the cube (whole faces,
         not seen too obliquely).
     :param polygons: (4, 2) outlines of every face of this cube found (whole or edge-on).
+    :param thin: per polygon, True for a face seen edge-on (``cube_strips``).
     :param tol_frac: largest distance of a vertex from its projected cube vertex, as a
         fraction of the longest side of the face that gave the pose.
-    :returns: all False when no pose is believed.
+    :returns: all False and None when no pose is believed.
     """
-    best = np.zeros(len(vertices_px), dtype=bool)
+    best: tuple[npt.NDArray[np.bool_], Array | None] = (np.zeros(len(vertices_px), bool), None)
     for K in Ks:
-        keep = _explained(vertices_px, posing, polygons, K, tol_frac)
-        if keep.sum() > best.sum():
-            best = keep
+        keep, proj = _explained(vertices_px, posing, polygons, thin, K, tol_frac)
+        if keep.sum() > best[0].sum():
+            best = keep, proj
     return best
 
 
-def _explained(vertices_px: Array, posing: list[int], polygons: list[Array], K: Array,
-               tol_frac: float) -> npt.NDArray[np.bool_]:
-    keep = None
+def _explained(vertices_px: Array, posing: list[int], polygons: list[Array], thin: list[bool],
+               K: Array, tol_frac: float) -> tuple[npt.NDArray[np.bool_], Array | None]:
+    keep, best, best_n = None, None, -1
     hulls = [cv2.convexHull(p.astype(np.float32)) for p in polygons]
     for f in posing:
         corners = polygons[f]
@@ -113,9 +117,44 @@ def _explained(vertices_px: Array, posing: list[int], polygons: list[Array], K: 
         tol = max(3.0, tol_frac * side)
         for proj in cube_projections(corners, K):
             shown = shown_sides(proj)
-            if not any(agrees(shown, hulls[g]) for g in range(len(polygons)) if g != f):
+            if not any(agrees(shown, hulls[g], not thin[g]) for g in range(len(polygons))
+                       if g != f):
                 continue
             near = np.hypot(*(vertices_px[:, None, :] - proj[None, :, :]).transpose(2, 0, 1))
             ok = near.min(axis=1) < tol
             keep = ok if keep is None else keep & ok
-    return np.zeros(len(vertices_px), dtype=bool) if keep is None else keep
+            if ok.sum() > best_n:
+                best, best_n = proj, int(ok.sum())
+    return (np.zeros(len(vertices_px), dtype=bool) if keep is None else keep), best
+
+
+def complete_strip(proj: Array, strip: Array) -> Array:
+    """
+    Return the (4, 2) outline of a face seen edge-on, ``strip`` = [c0, far0, far1, c1] (its
+    far corners measured along the shared side's normal only): the far corners of that face
+    on the posed cube ``proj`` (8, 2), when both lie near the measured far side (within half
+    the strip's width, 3 px at least). Unchanged otherwise.
+    """
+    c0, far0, far1, c1 = strip
+    i0, i1 = (int(np.argmin(np.hypot(*(proj - c).T))) for c in (c0, c1))
+    best = None
+    for face in ((0, 1, 2, 3),) + _SIDES + ((4, 5, 6, 7),):
+        if i0 not in face or i1 not in face:
+            continue
+        k0, k1 = face.index(i0), face.index(i1)
+        if (k1 - k0) % 4 not in (1, 3):
+            continue
+        step = 1 if (k1 - k0) % 4 == 1 else -1  # far corners: the face's other two
+        j0, j1 = face[(k0 - step) % 4], face[(k1 + step) % 4]
+        cost = np.hypot(*(proj[j0] - far0)) + np.hypot(*(proj[j1] - far1))
+        if best is None or cost < best[0]:
+            best = (cost, proj[j0], proj[j1])
+    if best is None:
+        return strip
+    far_line = np.cross([*far0, 1.0], [*far1, 1.0])
+    far_line /= max(float(np.hypot(*far_line[:2])), 1e-12)
+    width = max(np.hypot(*(far0 - c0)), np.hypot(*(far1 - c1)))
+    off = [abs(float(far_line @ [*p, 1.0])) for p in best[1:]]
+    if max(off) > max(3.0, 0.5 * width):
+        return strip
+    return np.array([c0, best[1], best[2], c1])

@@ -48,6 +48,32 @@ def _widths(inside: npt.NDArray[np.bool_], offs: Array) -> Array:
     return w
 
 
+def _half_step(bgr: Array, w: Array, offs: Array) -> Array:
+    """
+    Return (P,) strip widths moved to where the colour is half way from the strip's to the
+    outside's (the colour test passes mixed edge pixels, so its widths run ~1 px long).
+
+    :param bgr: (P, K, 3) samples along the profiles; ``w`` (P,) widths from the colour test.
+    """
+    out = w.copy()
+    for p in np.flatnonzero(np.isfinite(w)):
+        inner = bgr[p, (offs > 0.5) & (offs < w[p] - 1.5)]
+        outer = bgr[p, (offs > w[p] + 1.5) & (offs < w[p] + 3.5)]
+        if len(inner) == 0 or len(outer) == 0:
+            continue
+        strip, beyond = np.median(inner, axis=0), np.median(outer, axis=0)
+        d = strip - beyond
+        t = (bgr[p] - beyond) @ d / max(float(d @ d), 1e-9)  # 1 on the strip, 0 beyond
+        near = np.flatnonzero((offs > w[p] - 2.0) & (offs < w[p] + 2.0))
+        below = near[t[near] < 0.5]
+        if len(below) == 0 or below[0] == 0:
+            continue
+        k = below[0]  # first sample past half way, and the one before it
+        frac = (t[k - 1] - 0.5) / max(t[k - 1] - t[k], 1e-9)
+        out[p] = offs[k - 1] + frac * STEP_PX
+    return out
+
+
 def strip_faces(image_bgr: npt.NDArray[np.uint8], corners: list[Array], colours: list[str],
                 masks_of: MaskFn, max_width: float, min_width: float = 1.5,
                 min_frac: float = 0.75) -> list[tuple[str, Array, float]]:
@@ -82,6 +108,7 @@ def strip_faces(image_bgr: npt.NDArray[np.uint8], corners: list[Array], colours:
                 ok = np.isfinite(w) & (w >= min_width)
                 if ok.mean() < min_frac:
                     continue
+                w = _half_step(bgr.astype(np.float64), w, offs)
                 slope, icpt = np.polyfit(ts[ok], w[ok], 1)
                 w0, w1 = icpt, icpt + slope
                 if min(w0, w1) < 0.5 * min_width:
