@@ -76,7 +76,7 @@ def _half_step(bgr: Array, w: Array, offs: Array) -> Array:
 
 def strip_faces(image_bgr: npt.NDArray[np.uint8], corners: list[Array], colours: list[str],
                 masks_of: MaskFn, max_width: float, min_width: float = 1.5,
-                min_frac: float = 0.75) -> list[tuple[str, Array, float]]:
+                min_frac: float = 0.5) -> list[tuple[str, Array, float]]:
     """
     Return (colour, (4, 2) corners px, support) of thin strips along unshared face sides.
 
@@ -86,6 +86,9 @@ def strip_faces(image_bgr: npt.NDArray[np.uint8], corners: list[Array], colours:
     :param colours: per face its colour name.
     :param masks_of: ``(bgr (..., 3) uint8) -> {colour: (...) bool}`` cube colour test.
     :param max_width: widest strip looked for, px (wider faces are found as faces).
+    :param min_frac: share of the profiles that must find the strip: a box of the strip's
+        colour just behind the cube runs some profiles on past ``max_width`` (the shape check
+        then decides whether the strip agrees with the cube).
     """
     out = []
     for f, (cs, colour) in enumerate(zip(corners, colours)):
