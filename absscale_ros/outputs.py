@@ -1,7 +1,8 @@
 """
 The files of an offline run, from the last messages the graph published (see DESIGN.md).
 
-``scaled_cloud.ply`` (metres), ``sparse_cloud.ply`` (SfM units), ``trajectory.tum`` (metres when
+``scaled_cloud.ply`` (metres), ``dense_cloud.ply`` (metres, with normals; dense node on),
+``sparse_cloud.ply`` (SfM units), ``trajectory.tum`` (metres when
 a scale was established, else SfM units, as report.json says).
 """
 from pathlib import Path
@@ -11,6 +12,8 @@ from absscale_ros import conversions
 from absscale_ros.core import cloud
 import numpy as np
 from rclpy.serialization import deserialize_message
+
+SPARSE_METRIC_TOPIC = '/absscale/sparse_cloud_metric'
 
 
 def _cloud_arrays(msg: Any) -> tuple[np.ndarray, np.ndarray | None]:
@@ -27,14 +30,18 @@ def write_run_outputs(latest: dict[str, tuple[Any, bytes]], out: Path,
     written: dict[str, Any] = {}
     _picture(msgs, out, report)
     written['run.png'] = {}
-    for topic, name in (('/scaled_cloud', 'scaled_cloud.ply'),
+    # With the dense node on (issue 9) /scaled_cloud is the dense cloud and the sparse metric
+    # cloud comes on its own topic.
+    dense = SPARSE_METRIC_TOPIC in msgs
+    for topic, name in ((SPARSE_METRIC_TOPIC, 'scaled_cloud.ply'),
+                        ('/scaled_cloud', 'dense_cloud.ply' if dense else 'scaled_cloud.ply'),
                         ('/absscale/sparse_cloud', 'sparse_cloud.ply')):
         if topic in msgs:
-            xyz, rgb = _cloud_arrays(msgs[topic])
+            xyz, rgb, normals = conversions.cloud_msg_to_xyz_rgb_normals(msgs[topic])
             if not len(xyz):
                 written[name] = {'points': 0, 'skipped': 'the cloud is empty'}
                 continue
-            cloud.write_ply(out / name, xyz, rgb)
+            cloud.write_ply(out / name, xyz, rgb, normals)
             written[name] = {'points': len(xyz)}
     for topic, units in (('/absscale/scaled_path', 'metres'),
                          ('/absscale/keyframe_path', 'sfm units')):

@@ -17,12 +17,13 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 WATCHED_PREFIXES = ('/absscale/', '/scaled_cloud')
 VERTICES_TOPIC = '/absscale/vertices'
-LATCHED_TOPICS = ('/scaled_cloud', '/absscale/scaled_path', '/absscale/scale')
+LATCHED_TOPICS = ('/scaled_cloud', '/absscale/scaled_path', '/absscale/scale',
+                  '/absscale/sparse_cloud_metric')
 LATE_JOINER = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # The last message of these is kept for the run's output files.
 KEPT_TOPICS = ('/scaled_cloud', '/absscale/sparse_cloud', '/absscale/keyframe_path',
-               '/absscale/scaled_path', '/absscale/scale')
+               '/absscale/scaled_path', '/absscale/scale', '/absscale/sparse_cloud_metric')
 
 
 class GraphMonitorNode(Node):

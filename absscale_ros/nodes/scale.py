@@ -29,7 +29,8 @@ class ScaleNode(Node):
         self._cfg = common.declare_config(self, scale.ScaleConfig())
         p = {x.name: x.value for x in self.declare_parameters('', [
             ('sheet', 'letter'), ('sheet_size_m', [0.0, 0.0]), ('cube_edge_m', 0.8),
-            ('frame_id', 'map'), ('min_change', 0.001), ('require_path', False)])}
+            ('frame_id', 'map'), ('min_change', 0.001), ('require_path', False),
+            ('cloud_topic', '/scaled_cloud')])}
         custom = tuple(p['sheet_size_m']) if min(p['sheet_size_m']) > 0 else None
         # 'auto': letter or A4, whichever the reconstructed corners fit (a tie claims nothing).
         names = list(targets.SHEET_SIZES_M) if p['sheet'] == 'auto' and not custom \
@@ -40,7 +41,8 @@ class ScaleNode(Node):
         self._cube_m = p['cube_edge_m']
         self._frame, self._min_change = p['frame_id'], p['min_change']
         self._require_path = p['require_path']  # estimate from targets + path of one stamp
-        self._cloud_pub = self.create_publisher(PointCloud2, '/scaled_cloud', common.LATCHED)
+        # /absscale/sparse_cloud_metric when the dense node publishes /scaled_cloud (issue 9)
+        self._cloud_pub = self.create_publisher(PointCloud2, p['cloud_topic'], common.LATCHED)
         self._path_pub = self.create_publisher(Path, '/absscale/scaled_path', common.LATCHED)
         self._scale_pub = self.create_publisher(Float64MultiArray, '/absscale/scale',
                                                 common.LATCHED)
@@ -130,7 +132,7 @@ class ScaleNode(Node):
         if self._cloud is not None:
             self._cloud_pub.publish(conversions.scaled_cloud_msg(self._cloud, est.factor,
                                                                  stamp_ns, self._frame))
-            outputs.append('/scaled_cloud')
+            outputs.append(self._cloud_pub.topic_name)
         if self._path is not None:
             poses, stamps = conversions.path_msg_to_poses(self._path)
             self._path_pub.publish(conversions.poses_to_path_msg(

@@ -1,0 +1,222 @@
+"""
+Incremental dense cloud: keyframe depth maps checked against their neighbours, fused by voxel.
+
+Each keyframe gets one depth map (``dense_stereo``) from the best partner among its
+neighbours. A depth pixel survives when the depth maps of at least ``min_consistent`` other
+keyframes see the same surface within ``consistency_rel`` of its depth (multi-view
+consistency: stereo mistakes rarely repeat in another pair). The survivors of each keyframe are
+voxel-downsampled, cleared of statistical outliers and given normals once, and cached; the
+cloud is the voxel average of those caches. A new keyframe costs one stereo pair and the
+re-check of its neighbours; an old depth map is recomputed only when the pose of its pair
+moved materially (a scale change alone just scales it).
+"""
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from absscale_ros.core import dense_cloud, dense_stereo
+from absscale_ros.core.types import CameraModel
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class FusionConfig:
+    """Consistency, pose-change and cloud-cleaning thresholds."""
+
+    voxel_m: float = 0.01  # voxel edge of the fused cloud, m
+    consistency_rel: float = 0.005  # depths agreeing within this fraction are the same surface
+    min_consistent: int = 1  # other keyframes' depth maps that must agree
+    neighbours: int = 3  # keyframes on each side a depth pixel is checked against
+    both_sides: bool = True  # a partner on each side of a keyframe (two depth maps), else one
+    recompute_deg: float = 0.2  # pair rotation / baseline direction moved more: new depth
+    outlier_neighbours: int = 16  # statistical outlier removal: neighbours considered
+    outlier_std: float = 2.0  # ... and the mean-distance threshold, in standard deviations
+    normal_neighbours: int = 20  # points used for a normal
+
+
+@dataclass
+class _Keyframe:
+    image: np.ndarray  # at the working scale
+    camera: CameraModel
+    pose: FloatArray | None = None  # T_world_cam, metres
+    depths: dict[int, dense_stereo.DepthMap] = field(default_factory=dict)  # by side, +1 / -1
+    cloud: Any = None  # cached open3d cloud in the camera frame (None: to be rebuilt)
+
+
+def _angle_deg(a: FloatArray, b: FloatArray) -> float:
+    cos = np.dot(a, b) / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-12)
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+
+
+def _rotation_deg(R: FloatArray) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
+
+
+class DenseFusion:
+    """Keyframes in, a metric dense cloud out; call ``update`` whenever poses arrive."""
+
+    def __init__(self, stereo: dense_stereo.StereoConfig, fusion: FusionConfig) -> None:
+        self.stereo, self.cfg = stereo, fusion
+        self._frames: dict[int, _Keyframe] = {}
+        self.depth_computed = 0  # stereo pairs run so far (recomputations included)
+
+    def add_keyframe(self, stamp_ns: int, image_bgr: np.ndarray, camera: CameraModel) -> None:
+        """Keep a keyframe (at the working scale) until its pose is known."""
+        image, cam = dense_stereo.working_image(image_bgr, camera, self.stereo)
+        self._frames[stamp_ns] = _Keyframe(image, cam)
+
+    def update(self, poses: dict[int, FloatArray]) -> bool:
+        """
+        Take the latest metric poses (stamp -> T_world_cam); compute what they make stale.
+
+        :returns: whether the cloud changed.
+        """
+        stamps = [s for s in sorted(self._frames) if s in poses]
+        for s in self._frames:
+            if s not in poses:
+                self._frames[s].cloud = None  # dropped from the map: keep, but out of the cloud
+        for s in stamps:
+            kf = self._frames[s]
+            old, kf.pose = kf.pose, np.asarray(poses[s], np.float64)
+            if old is None or not np.allclose(old, kf.pose, atol=1e-9):
+                kf.cloud = None
+        changed = {i for i in range(len(stamps)) if self._refresh_depth(stamps, i)}
+        for i in self._near(changed, len(stamps)):
+            self._frames[stamps[i]].cloud = None
+        rebuilt = [s for s in stamps if self._frames[s].depths and self._frames[s].cloud is None]
+        for s in rebuilt:
+            self._frames[s].cloud = self._keyframe_cloud(stamps, stamps.index(s))
+        self._stamps = stamps
+        return bool(rebuilt)
+
+    def _near(self, indices: set[int], n: int) -> set[int]:
+        k = self.cfg.neighbours
+        return {j for i in indices for j in range(max(0, i - k), min(n, i + k + 1))}
+
+    def _refresh_depth(self, stamps: list[int], i: int) -> bool:
+        """
+        Bring keyframe ``i``'s depth maps (a partner on each side, or one) up to date; return
+        whether one changed. Both sides average out SGBM's sub-pixel bias, whose sign follows
+        the direction of the baseline in the image (measured: about +-0.3 % of depth).
+        """
+        changed = False
+        for side in (1, -1) if self.cfg.both_sides else (0,):
+            changed |= self._refresh_side(stamps, i, side)
+        return changed
+
+    def _refresh_side(self, stamps: list[int], i: int, side: int) -> bool:
+        kf = self._frames[stamps[i]]
+        old = kf.depths.get(side)
+        if old is not None and old.pair_stamp in self._frames:
+            partner = self._frames[old.pair_stamp]
+            if partner.pose is not None:
+                T = dense_stereo.relative_pose(kf.pose, partner.pose)
+                if _rotation_deg(T[:3, :3] @ old.relative[:3, :3].T) < self.cfg.recompute_deg \
+                        and _angle_deg(T[:3, 3], old.relative[:3, 3]) < self.cfg.recompute_deg:
+                    ratio = np.linalg.norm(T[:3, 3]) / np.linalg.norm(old.relative[:3, 3])
+                    if abs(ratio - 1.0) < 1e-9:
+                        return False
+                    old.depth *= np.float32(ratio)  # a new scale only: depth goes with baseline
+                    old.relative = T
+                    return True
+        depth_guess = self._depth_guess(stamps, i)
+        n = self.stereo.candidates
+        scored = []
+        for j in range(max(0, i - n), min(len(stamps), i + n + 1)):
+            other = self._frames[stamps[j]].pose
+            offset = kf.pose[:3, :3].T @ (other[:3, 3] - kf.pose[:3, 3])
+            if j != i and side in (0, np.sign(offset[0])):
+                q = dense_stereo.pair_quality(kf.pose, other, depth_guess, self.stereo)
+                if q is not None:
+                    scored.append((q, j))
+        if not scored:
+            return kf.depths.pop(side, None) is not None
+        j = min(scored)[1]
+        partner = self._frames[stamps[j]]
+        kf.depths[side] = dense_stereo.compute_depth(kf.image, partner.image, kf.camera,
+                                                     kf.pose, partner.pose, stamps[j],
+                                                     self.stereo)
+        self.depth_computed += 1
+        return True
+
+    def _depth_guess(self, stamps: list[int], i: int) -> float:
+        """Median depth of the nearest keyframe that has a depth map (for the pair choice)."""
+        for j in sorted(range(len(stamps)), key=lambda j: abs(j - i)):
+            for d in self._frames[stamps[j]].depths.values():
+                if np.any(d.depth > 0):
+                    return float(np.median(d.depth[d.depth > 0]))
+        return 1.0 / self.stereo.target_baseline_ratio * self._typical_step(stamps, i)
+
+    def _typical_step(self, stamps: list[int], i: int) -> float:
+        """Distance to the nearest other keyframe: keyframes are about a target ratio apart."""
+        c = self._frames[stamps[i]].pose[:3, 3]
+        steps = [np.linalg.norm(self._frames[s].pose[:3, 3] - c) for s in stamps if s != stamps[i]]
+        return float(min(steps)) if steps else 1.0
+
+    def _keyframe_cloud(self, stamps: list[int], i: int) -> Any:
+        """The consistent points of keyframe ``i``, cleaned, with normals, in its camera frame."""
+        kf = self._frames[stamps[i]]
+        k = self.cfg.neighbours
+        maps = [(m, self._frames[stamps[j]].pose, j)
+                for j in range(max(0, i - k), min(len(stamps), i + k + 1))
+                for m in self._frames[stamps[j]].depths.values()]
+        keep_pts, keep_col = [], []
+        for own in kf.depths.values():
+            pts, colours = own.points_camera()
+            world = pts @ kf.pose[:3, :3].T + kf.pose[:3, 3]
+            votes = np.zeros(len(pts), np.int32)
+            for m, pose, _ in maps:  # the keyframe's other side is an independent pair too
+                if m is not own:
+                    votes += agrees(world, pose, m, self.cfg.consistency_rel)
+            keep = votes >= self.cfg.min_consistent
+            keep_pts.append(pts[keep])
+            keep_col.append(colours[keep])
+        return dense_cloud.clean(np.concatenate(keep_pts), np.concatenate(keep_col), self.cfg)
+
+    def cloud(self) -> tuple[FloatArray, npt.NDArray[np.uint8], FloatArray]:
+        """The fused cloud in the world frame: (N, 3) metres, (N, 3) rgb, (N, 3) unit normals."""
+        parts = [(self._frames[s].cloud, self._frames[s].pose) for s in self._stamps
+                 if self._frames[s].cloud is not None]
+        return dense_cloud.fuse(parts, self.cfg.voxel_m)
+
+    @property
+    def pairs(self) -> list[tuple[int, int]]:
+        """(keyframe, partner) stamps of every depth map held."""
+        return [(s, d.pair_stamp) for s, kf in sorted(self._frames.items())
+                for d in kf.depths.values()]
+
+    @property
+    def keyframes(self) -> int:
+        """Keyframes whose points are in the cloud."""
+        return sum(1 for s in getattr(self, '_stamps', []) if self._frames[s].cloud is not None)
+
+
+def agrees(world: FloatArray, T_world_cam: FloatArray, depth: dense_stereo.DepthMap,
+           tolerance_rel: float) -> npt.NDArray[np.bool_]:
+    """Which world points the depth map of another keyframe sees at the same depth."""
+    R = depth.R_rect @ T_world_cam[:3, :3].T
+    p = (world - T_world_cam[:3, 3]) @ R.T
+    z = p[:, 2]
+    ok = z > 1e-6
+    uv = np.full((len(p), 2), -1, np.int64)
+    uv[ok] = np.round(p[ok, :2] / z[ok, None] * np.diag(depth.K_rect)[:2]
+                      + depth.K_rect[:2, 2]).astype(np.int64)
+    h, w = depth.depth.shape
+    ok &= (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+    seen = np.zeros(len(p), np.float32)
+    seen[ok] = depth.depth[uv[ok, 1], uv[ok, 0]]
+    return ok & (seen > 0) & (np.abs(seen - z) <= tolerance_rel * z)
+
+
+def pose_matrices(poses_xyzw: FloatArray, stamps_ns: npt.ArrayLike) -> dict[int, FloatArray]:
+    """stamp -> 4x4 T_world_cam from (N, 7) ``x y z qx qy qz qw`` rows (a Path's poses)."""
+    from scipy.spatial.transform import Rotation
+    out = {}
+    for stamp, p in zip(np.asarray(stamps_ns).tolist(), np.asarray(poses_xyzw, np.float64)):
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = Rotation.from_quat(p[3:]).as_matrix(), p[:3]
+        out[int(stamp)] = T
+    return out

@@ -1,0 +1,185 @@
+"""
+Depth of one keyframe from a second one: pair choice, rectification, semi-global matching.
+
+The two views are rectified with their known (metric) relative pose, so that OpenCV's
+StereoSGBM searches along image rows; its built-in left-right check (``disp12MaxDiff``) drops
+occluded and ambiguous pixels. The disparity range comes from a few tracked corners of the
+rectified pair, so neither the scene depth nor the baseline has to be known beforehand.
+Depth is kept in the *rectified* reference camera (its rotation ``R_rect`` and intrinsics
+``K_rect`` go with it), which is where other keyframes' points are checked against it.
+"""
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from absscale_ros.core.types import CameraModel
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class StereoConfig:
+    """Semi-global matching and pair selection; pixel sizes are at the working scale."""
+
+    scale: float = 0.5  # work on keyframes resized by this factor (speed)
+    target_baseline_ratio: float = 0.25  # preferred baseline / median depth of a pair
+    max_forward_fraction: float = 0.5  # |baseline along the optical axis| / baseline above: no
+    max_angle_deg: float = 30.0  # viewing directions further apart: no pair
+    candidates: int = 6  # keyframes before and after tried as the second view
+    block_size: int = 5  # SGBM matching window, px
+    uniqueness: int = 10  # SGBM uniqueness margin, percent
+    lr_max_diff: int = 1  # left-right disparity check tolerance, px
+    speckle_window: int = 100  # connected blobs smaller than this are dropped, px
+    speckle_range: int = 2  # disparity jump inside one blob, px
+    max_disparities: int = 256  # widest disparity search, px
+    min_disparity_px: float = 2.0  # smaller disparities (far, imprecise) are discarded
+    max_depth_baselines: float = 15.0  # deeper than this many baselines: too imprecise, dropped
+    max_canvas_grow: float = 1.5  # rectified image at most this much larger than the keyframe
+
+
+@dataclass
+class DepthMap:
+    """Depth of one reference keyframe in its rectified camera."""
+
+    depth: npt.NDArray[np.float32]  # (H, W) z in the rectified camera, m; 0 = none
+    colour: npt.NDArray[np.uint8]  # (H, W, 3) rectified reference image, bgr
+    K_rect: FloatArray  # (3, 3) intrinsics of the rectified camera
+    R_rect: FloatArray  # (3, 3) rotation from the keyframe's camera to the rectified one
+    pair_stamp: int  # stamp of the second keyframe
+    relative: FloatArray  # (4, 4) T_pair_ref the depth was computed with
+
+    def points_camera(self) -> tuple[FloatArray, npt.NDArray[np.uint8]]:
+        """Valid pixels as (N, 3) points in the keyframe's (unrectified) camera, and colours."""
+        v, u = np.nonzero(self.depth > 0)
+        z = self.depth[v, u].astype(np.float64)
+        K = self.K_rect
+        rect = np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], axis=1)
+        return rect @ self.R_rect, self.colour[v, u]
+
+
+def working_image(image: np.ndarray, camera: CameraModel,
+                  cfg: StereoConfig) -> tuple[np.ndarray, CameraModel]:
+    """The keyframe at the working scale, and its camera."""
+    h, w = image.shape[:2]
+    size = (int(round(w * cfg.scale)), int(round(h * cfg.scale)))
+    if size == (w, h):
+        return image, camera.resized(w, h)
+    return cv2.resize(image, size, interpolation=cv2.INTER_AREA), camera.resized(*size)
+
+
+def relative_pose(T_world_a: FloatArray, T_world_b: FloatArray) -> FloatArray:
+    """T_b_a: maps points of camera a into camera b."""
+    return np.linalg.inv(T_world_b) @ T_world_a
+
+
+def pair_quality(T_world_ref: FloatArray, T_world_other: FloatArray, depth_m: float,
+                 cfg: StereoConfig) -> float | None:
+    """How far a pair is from the preferred baseline ratio (lower is better); None if unusable."""
+    T = relative_pose(T_world_other, T_world_ref)  # other camera in the reference frame
+    c = T[:3, 3]
+    baseline = float(np.linalg.norm(c))
+    cos = np.clip((np.trace(T[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
+    if baseline < 1e-9 or np.degrees(np.arccos(cos)) > cfg.max_angle_deg or \
+            abs(c[2]) / baseline > cfg.max_forward_fraction:
+        return None
+    return abs(np.log(baseline / depth_m / cfg.target_baseline_ratio))
+
+
+def _disparity_range(left: np.ndarray, right: np.ndarray, cfg: StereoConfig) -> tuple[int, int]:
+    """(minDisparity, numDisparities) from corners tracked along the rectified rows."""
+    corners = cv2.goodFeaturesToTrack(left, 400, 0.01, 8)
+    lo, hi = 0.0, 64.0
+    if corners is not None:
+        moved, ok, _ = cv2.calcOpticalFlowPyrLK(left, right, corners, None, winSize=(21, 21),
+                                                maxLevel=4)
+        d = (corners - moved).reshape(-1, 2)
+        good = (ok.ravel() == 1) & (np.abs(d[:, 1]) < 1.5)
+        if good.sum() >= 10:
+            lo, hi = np.percentile(d[good, 0], [2, 98])
+    lo = max(0, int(np.floor(lo * 0.8 - 4)))
+    width = int(np.ceil((hi * 1.25 + 8 - lo) / 16.0)) * 16
+    return lo, int(np.clip(width, 32, cfg.max_disparities))
+
+
+def rectifying_rotations(T_other_ref: FloatArray) -> tuple[FloatArray, FloatArray, float]:
+    """
+    Rotations of the reference and the other camera into a common rectified frame whose x
+    axis points from the reference to the other camera (Fusiello et al. 2000), and the baseline.
+
+    With the other camera on +x the reference is always the left image of the pair.
+    """
+    R, t = T_other_ref[:3, :3], T_other_ref[:3, 3]
+    centre = -R.T @ t  # the other camera in the reference frame
+    baseline = float(np.linalg.norm(centre))
+    x = centre / baseline
+    z_mean = np.array([0.0, 0.0, 1.0]) + R.T[:, 2]
+    y = np.cross(z_mean, x)
+    y /= np.linalg.norm(y)
+    R_rect = np.stack([x, y, np.cross(x, y)])
+    return R_rect, R_rect @ R.T, baseline
+
+
+def _rectified_camera(K: FloatArray, R_rect: FloatArray, size: tuple[int, int],
+                      max_grow: float) -> tuple[FloatArray, tuple[int, int]]:
+    """Intrinsics and canvas that hold the whole rectified reference (up to ``max_grow``)."""
+    w, h = size
+    corners = np.array([[0, 0, 1], [w - 1, 0, 1], [0, h - 1, 1], [w - 1, h - 1, 1]], float)
+    ray = (R_rect @ np.linalg.inv(K) @ corners.T).T
+    ray = ray[ray[:, 2] > 1e-6]
+    f = float(K[0, 0])
+    xy = f * ray[:, :2] / ray[:, 2:]
+    lo, hi = xy.min(0), xy.max(0)
+    span = np.minimum(hi - lo, np.array([w, h]) * max_grow)
+    centre = (lo + hi) / 2.0
+    K_rect = np.array([[f, 0.0, span[0] / 2 - centre[0]], [0.0, f, span[1] / 2 - centre[1]],
+                       [0.0, 0.0, 1.0]])
+    return K_rect, (int(span[0]) + 1, int(span[1]) + 1)
+
+
+def compute_depth(ref_bgr: np.ndarray, other_bgr: np.ndarray, camera: CameraModel,
+                  T_world_ref: FloatArray, T_world_other: FloatArray, pair_stamp: int,
+                  cfg: StereoConfig) -> DepthMap:
+    """
+    Depth of ``ref_bgr`` by semi-global matching against ``other_bgr``.
+
+    :param camera: the camera of both images (their size, with its distortion); see
+        ``working_image`` for the smaller copies the matching is meant to run on.
+    """
+    cam = camera
+    size = (cam.width, cam.height)
+    dist = cam.dist if cam.has_distortion else np.zeros(5)
+    T = relative_pose(T_world_ref, T_world_other)  # ref -> other
+    R_ref, R_other, baseline = rectifying_rotations(T)
+    K_rect, canvas = _rectified_camera(cam.K, R_ref, size, cfg.max_canvas_grow)
+    rect, inside = [], []
+    for img, R in ((ref_bgr, R_ref), (other_bgr, R_other)):
+        mx, my = cv2.initUndistortRectifyMap(cam.K, dist, R, K_rect, canvas, cv2.CV_32FC1)
+        rect.append(cv2.remap(img, mx, my, cv2.INTER_LINEAR))
+        inside.append((mx >= 0) & (my >= 0) & (mx <= size[0] - 1) & (my <= size[1] - 1))
+    grey = [cv2.cvtColor(r, cv2.COLOR_BGR2GRAY) for r in rect]
+    disp = _sgbm(grey[0], grey[1], cfg)
+    disp[~inside[0]] = 0.0
+    # The match must land inside the other image too (the black margin matches anything).
+    v, u = np.nonzero(disp > 0)
+    u2 = np.round(u - disp[v, u]).astype(int)
+    ok = (u2 >= 0) & inside[1][v, np.clip(u2, 0, canvas[0] - 1)]
+    disp[v[~ok], u[~ok]] = 0.0
+    f = K_rect[0, 0]
+    depth = np.where(disp >= cfg.min_disparity_px, f * baseline / np.maximum(disp, 1e-6), 0)
+    depth[depth > cfg.max_depth_baselines * baseline] = 0.0
+    return DepthMap(depth.astype(np.float32), rect[0], K_rect, R_ref, pair_stamp, T)
+
+
+def _sgbm(left: np.ndarray, right: np.ndarray, cfg: StereoConfig) -> np.ndarray:
+    lo, num = _disparity_range(left, right, cfg)
+    b = cfg.block_size
+    sgbm = cv2.StereoSGBM_create(
+        minDisparity=lo, numDisparities=num, blockSize=b, P1=8 * b * b, P2=32 * b * b,
+        disp12MaxDiff=cfg.lr_max_diff, uniquenessRatio=cfg.uniqueness,
+        speckleWindowSize=cfg.speckle_window, speckleRange=cfg.speckle_range,
+        mode=cv2.STEREO_SGBM_MODE_SGBM)
+    disp = sgbm.compute(left, right).astype(np.float32) / 16.0
+    disp[disp < lo] = 0.0  # SGBM marks rejected pixels with minDisparity - 1
+    return disp

@@ -1,0 +1,76 @@
+"""Dense stereo and fusion on rendered keyframes with exact poses, against the scene mesh."""
+
+from absscale_ros.core import dense_fusion, dense_stereo
+from dense_scenes import sideways_keyframes
+import numpy as np
+
+# The test frames are 640x360: match at full size (the configs halve 1280x720 keyframes).
+STEREO = dense_stereo.StereoConfig(scale=1.0)
+FUSION = dense_fusion.FusionConfig()
+
+
+def _fused(poses: list[np.ndarray], fusion: dense_fusion.DenseFusion | None = None):
+    images, cam, _, _ = sideways_keyframes()
+    if fusion is None:
+        fusion = dense_fusion.DenseFusion(STEREO, FUSION)
+        for k, image in enumerate(images):
+            fusion.add_keyframe(k, image, cam)
+    fusion.update(dict(enumerate(poses)))
+    return fusion
+
+
+def test_one_pair_depth_matches_the_scene() -> None:
+    images, cam, poses, mesh = sideways_keyframes()
+    depth = dense_stereo.compute_depth(images[2], images[0], cam, poses[2], poses[0], 0, STEREO)
+    pts, colours = depth.points_camera()
+    assert len(pts) > 0.3 * cam.width * cam.height and colours.shape == pts.shape
+    world = pts @ poses[2][:3, :3].T + poses[2][:3, 3]
+    dist = mesh.distance(world)
+    z = np.median(pts[:, 2])
+    # One left-right checked SGBM pair at 0.24 baseline / depth, before any fusion.
+    assert np.median(dist) < 0.006 * z and np.mean(dist > 0.05) < 0.1
+    # The other camera on the reference's left is matched as well (the pair is mirrored).
+    back = dense_stereo.compute_depth(images[0], images[2], cam, poses[0], poses[2], 2, STEREO)
+    p0, _ = back.points_camera()
+    assert len(p0) > 0.3 * cam.width * cam.height
+    dist0 = mesh.distance(p0 @ poses[0][:3, :3].T + poses[0][:3, 3])
+    assert np.median(dist0) < 0.006 * z and np.mean(dist0 > 0.05) < 0.1
+
+
+def test_fused_cloud_is_accurate_clean_and_has_normals() -> None:
+    _, cam, poses, mesh = sideways_keyframes()
+    fusion = _fused(poses)
+    xyz, rgb, normals = fusion.cloud()
+    assert fusion.keyframes == len(poses) and len(xyz) > 20000
+    dist = mesh.distance(xyz)
+    depth = np.median(np.linalg.norm(xyz - poses[0][:3, 3], axis=1))
+    # Close-up desk and walls at 640x360 (the issue's 0.3 % / 1 % are measured on whole bags
+    # by `absscale bench dense`); a fusion that let stereo mistakes through would be far off.
+    assert np.median(dist) < 0.005 * depth and np.percentile(dist, 90) < 0.015 * depth
+    assert np.allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-6)
+    facing = np.einsum('ij,ij->i', normals, poses[0][:3, 3] - xyz) > 0
+    assert facing.mean() > 0.95  # oriented towards the cameras that saw them
+    assert rgb.dtype == np.uint8 and rgb.std() > 10  # the scene's colours, not one grey
+
+
+def test_only_moved_pairs_are_recomputed() -> None:
+    _, cam, poses, mesh = sideways_keyframes()
+    fusion = _fused(poses)
+    first = fusion.depth_computed
+    pairs = fusion.pairs
+    assert first == len(pairs) and len(poses) < first <= 2 * len(poses)  # both sides mostly
+    before, _, _ = fusion.cloud()
+    # A new scale estimate (all positions x 1.02) moves no pair: depth maps are only rescaled.
+    scaled = [np.vstack([np.hstack([T[:3, :3], 1.02 * T[:3, 3:]]), T[3:]]) for T in poses]
+    _fused(scaled, fusion)
+    assert fusion.depth_computed == first
+    after, _, _ = fusion.cloud()
+    centre = before.mean(0)
+    assert np.linalg.norm(after.mean(0) - 1.02 * centre) < 0.01 * np.linalg.norm(centre)
+    # One keyframe re-estimated 1 degree off: its depth and its partners' are recomputed.
+    R = dense_fusion.pose_matrices(np.array([[0, 0, 0, 0, np.sin(np.radians(0.5)), 0,
+                                              np.cos(np.radians(0.5))]]), [0])[0][:3, :3]
+    turned = [T.copy() for T in scaled]
+    turned[3][:3, :3] = R @ turned[3][:3, :3]
+    _fused(turned, fusion)
+    assert fusion.depth_computed == first + sum(3 in pair for pair in pairs)

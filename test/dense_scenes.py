@@ -1,0 +1,32 @@
+"""
+A few rendered keyframes with exact poses for the dense-cloud tests.
+
+The simulator's renderer draws the indoor scene (640x360, the camera's lens distortion
+included) from a sideways walk that looks at the calibration sheet, as a handheld scan does;
+the scene's mesh is the truth the dense points are measured against.
+"""
+import functools
+
+from absscale_ros.core import dense_evaluation
+from absscale_ros.sim import camera as simcam
+from absscale_ros.sim import render, scenes
+from keyframe_scenes import _look_at
+import numpy as np
+
+STEP_M = 0.12  # between keyframes: about a tenth of the depth, as the selector spaces them
+
+
+@functools.lru_cache(maxsize=1)
+def sideways_keyframes(count: int = 6, seed: int = 3) -> tuple:
+    """(images bgr, camera, T_world_cam list, mesh) of ``count`` keyframes."""
+    scene = scenes.build_scene('indoor_paper', seed)
+    cam = simcam.make_camera(np.random.default_rng(seed), 640, 360)
+    renderer = render.Renderer(scene, cam)
+    w = scene.walk
+    target = np.array([w['target_x'], w['target_y'], w['target_z']])
+    start = target + np.array([-0.4, -1.6, 0.9])
+    poses = [_look_at(start + [STEP_M * k, 0.0, 0.0], target) for k in range(count)]
+    images = [np.clip(renderer.render(T).colour, 0, 255).astype(np.uint8)[..., ::-1].copy()
+              for T in poses]
+    mesh = dense_evaluation.SceneMesh(scene.vertices_m, scene.triangles)
+    return images, cam, poses, mesh
