@@ -35,7 +35,10 @@ PIPELINE: list[tuple[str, str, str]] = [
     ('keyframe_selector', 'absscale_ros.nodes.keyframe_selector', 'KeyframeSelectorNode'),
     ('sfm', 'absscale_ros.nodes.sfm', 'SfmNode'),
     ('scale', 'absscale_ros.nodes.scale', 'ScaleNode'),
+    ('dense', 'absscale_ros.nodes.dense', 'DenseNode'),
 ]
+# With the dense node on, it owns /scaled_cloud and the sparse metric cloud moves here.
+SPARSE_METRIC_TOPIC = '/absscale/sparse_cloud_metric'
 
 
 @dataclass
@@ -68,10 +71,19 @@ class RunOptions:
     processes: bool = False  # each pipeline node in its own process, over real DDS
 
 
-def available_nodes() -> list[tuple[str, type]]:
-    """The pipeline nodes whose modules exist in this checkout, in data-flow order."""
+def dense_enabled(sections: dict[str, dict[str, Any]]) -> bool:
+    """Whether the config turns the optional dense node on (``dense: enabled``)."""
+    return bool(params.node_params(sections, 'dense').get('enabled', False))
+
+
+def available_nodes(sections: dict[str, dict[str, Any]] | None = None
+                    ) -> list[tuple[str, type]]:
+    """The pipeline nodes whose modules exist in this checkout (the dense node only when the
+    config's ``sections`` enable it), in data-flow order."""
     found = []
     for name, module, cls in PIPELINE:
+        if name == 'dense' and not dense_enabled(sections or {}):
+            continue
         if importlib.util.find_spec(module) is not None:
             found.append((name, getattr(importlib.import_module(module), cls)))
     return found
@@ -93,9 +105,11 @@ def _private_domain() -> int:
 def _start_nodes(context: rclpy.Context, sections: dict[str, dict[str, Any]],
                  live: bool) -> dict[str, Node]:
     nodes: dict[str, Node] = {}
-    found = available_nodes()
+    found = available_nodes(sections)
     for name, cls in found:
         values = params.node_params(sections, name)
+        if name == 'scale' and dense_enabled(sections):
+            values['cloud_topic'] = SPARSE_METRIC_TOPIC
         if name == 'keyframe_selector' and 'vertex_detector' not in dict(found):
             values['use_vertices'] = False  # no detector: frames alone decide
         if live:
@@ -180,11 +194,14 @@ class _NodeProcesses:
     def __init__(self, config_path: Path, domain_id: int, live: bool) -> None:
         self._dir = tempfile.TemporaryDirectory(prefix='absscale_nodes_')
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
-        found = dict(available_nodes())
+        sections = params.load_yaml(config_path)
+        found = dict(available_nodes(sections))
         self.names = list(found)
         self._procs: dict[str, subprocess.Popen] = {}
         for name, cls in found.items():
             args = ['--ros-args', '--params-file', str(config_path)]
+            if name == 'scale' and dense_enabled(sections):
+                args += ['-p', f'cloud_topic:={SPARSE_METRIC_TOPIC}']
             if name == 'keyframe_selector' and 'vertex_detector' not in found:
                 args += ['-p', 'use_vertices:=false']
             if live:
