@@ -85,3 +85,51 @@ def due_wall_ns(bag_t_ns: int, bag_t0_ns: int, wall_t0_ns: int, rate: float) -> 
     if rate <= 0.0:
         raise ValueError(f'rate must be positive, got {rate}')
     return wall_t0_ns + int((bag_t_ns - bag_t0_ns) / rate)
+
+
+class StepWindow:
+    """
+    Up to ``size`` stepped messages in flight at once, each with its own ``StepTracker``.
+
+    A window of 1 is strict lock-step; a larger one lets the stages of the graph work on
+    different frames at the same time (the detector on frame k+1 while the SfM is busy with
+    keyframe k) while staying lossless: no more than ``size`` frames are ever queued.
+    Started-at times come from the caller (core reads no clock).
+
+    :param consumers_of: topic -> names of the acknowledging nodes subscribed to it.
+    """
+
+    def __init__(self, consumers_of: Callable[[str], Iterable[str]], size: int = 1) -> None:
+        if size < 1:
+            raise ValueError(f'step window must be >= 1, got {size}')
+        self.size = size
+        self._consumers_of = consumers_of
+        self._open: dict[int, tuple[StepTracker, float]] = {}
+
+    def start(self, topic: str, stamp_ns: int, now: float) -> None:
+        """A stepped message on ``topic`` stamped ``stamp_ns`` went out at ``now``."""
+        tracker = StepTracker(self._consumers_of)
+        tracker.start(topic, stamp_ns)
+        if not tracker.done:
+            self._open[stamp_ns] = (tracker, now)
+
+    def on_ack(self, ack: Ack) -> bool:
+        """Record ``ack``; return True if it completed a step."""
+        entry = self._open.get(ack.stamp_ns)
+        if entry is None or not entry[0].on_ack(ack) or not entry[0].done:
+            return False
+        del self._open[ack.stamp_ns]
+        return True
+
+    @property
+    def full(self) -> bool:
+        return len(self._open) >= self.size
+
+    @property
+    def empty(self) -> bool:
+        return not self._open
+
+    def expire(self, now: float, timeout_s: float) -> list[tuple[int, list[str]]]:
+        """Give up on steps open longer than ``timeout_s``; return (stamp, what was owed)."""
+        late = [s for s, (_, t) in self._open.items() if now - t >= timeout_s]
+        return [(s, self._open.pop(s)[0].pending()) for s in late]

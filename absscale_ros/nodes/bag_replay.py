@@ -29,7 +29,7 @@ class BagReplayNode(Node):
             ('start_offset_s', 0.0), ('loop', False), ('step_topics', ''),
             ('step_timeout_s', 10.0), ('expect_nodes', ''), ('qos', 'reliable'),
             ('progress_period_s', 5.0), ('startup_timeout_s', 5.0), ('settle_s', 0.0),
-            ('observer', '')])
+            ('observer', ''), ('step_window', 1)])
         self._p = {x.name: x.value for x in p}
         if self._p['mode'] not in ('rate', 'fast', 'step'):
             raise ValueError(f"mode must be rate, fast or step, not {self._p['mode']!r}")
@@ -42,7 +42,7 @@ class BagReplayNode(Node):
                       for t, i in self._infos.items()}
         self._stepped = set(_csv(self._p['step_topics'])) or {
             t for t, i in self._infos.items() if i.msgtype in IMAGE_TYPES}
-        self._tracker = replay.StepTracker(self._consumers_of)
+        self._window = replay.StepWindow(self._consumers_of, int(self._p['step_window']))
         self._consumers: dict[str, list[str]] = {}
         self.total = sum(i.count for i in self._infos.values())
         self.published = self.steps = self.timeouts = 0
@@ -50,7 +50,7 @@ class BagReplayNode(Node):
         self.published_at: dict[int, int] = {}  # frame stamp -> monotonic ns it went out
         self._known_since: float | None = None
         self._cursor: bagio.ReplayCursor | None = None
-        self._step_started = self._last_progress = self._created = time.monotonic()
+        self._last_progress = self._created = time.monotonic()
         self._create_ack_sub()
         self._timer = self.create_timer(0.001, self._tick)
 
@@ -123,7 +123,7 @@ class BagReplayNode(Node):
         self._loops_seen = 0
 
     def _tick(self) -> None:
-        if self.finished:
+        if self.drained:
             return
         if self._cursor is None:
             if not self._ready():
@@ -131,8 +131,7 @@ class BagReplayNode(Node):
             self._start()
         if self._p['mode'] == 'step':
             self._check_step_timeout()
-            if self._tracker.done:
-                self._advance_step()
+            self._advance_step()
         else:
             self._publish_due()
         self._report_progress()
@@ -153,23 +152,24 @@ class BagReplayNode(Node):
             self._publish(self._take())
             budget -= 1
 
+    @property
+    def drained(self) -> bool:
+        """Every message is out and (step mode) every step has been acknowledged."""
+        return self.finished and self._window.empty
+
     def _advance_step(self) -> None:
-        """Publish until one stepped message is out (or the bag ends)."""
-        while not self.finished:
+        """Publish until the window of stepped messages in flight is full (or the bag ends)."""
+        while not self.finished and not self._window.full:
             msg = self._take()
             if msg is None:
                 return
             self._publish(msg)
             if msg.topic in self._stepped:
                 stamp = bagio.header_stamp_ns(msg.data)
-                self._tracker.start(self._pubs[msg.topic].topic_name,
-                                    msg.stamp_ns if stamp is None else stamp)
-                self.published_at[msg.stamp_ns if stamp is None else stamp] = \
-                    time.monotonic_ns()
+                stamp = msg.stamp_ns if stamp is None else stamp
+                self._window.start(self._pubs[msg.topic].topic_name, stamp, time.monotonic())
+                self.published_at[stamp] = time.monotonic_ns()
                 self.steps += 1
-                self._step_started = time.monotonic()
-                if not self._tracker.done:
-                    return
 
     def _on_ack(self, msg: Header) -> None:
         try:
@@ -177,18 +177,16 @@ class BagReplayNode(Node):
         except ValueError as err:
             self.get_logger().warning(str(err), throttle_duration_sec=5.0)
             return
-        if self._tracker.on_ack(ack) and self._tracker.done and self._cursor is not None:
+        if self._window.on_ack(ack) and self._cursor is not None:
             self._advance_step()
 
     def _check_step_timeout(self) -> None:
-        if self._tracker.done or time.monotonic() - self._step_started < self._p['step_timeout_s']:
-            return
-        self.timeouts += 1
-        self.get_logger().warning(
-            f'step {self.steps}: no acknowledgement from {", ".join(self._tracker.pending())} '
-            f'after {self._p["step_timeout_s"]} s; moving on')
-        self._consumers.clear()  # the graph may have changed
-        self._tracker.stamp_ns = None
+        for stamp, pending in self._window.expire(time.monotonic(), self._p['step_timeout_s']):
+            self.timeouts += 1
+            self.get_logger().warning(
+                f'frame {stamp}: no acknowledgement from {", ".join(pending)} '
+                f'after {self._p["step_timeout_s"]} s; moving on')
+            self._consumers.clear()  # the graph may have changed
 
     def _take(self) -> bagio.BagMessage | None:
         assert self._cursor is not None

@@ -1,5 +1,5 @@
 """Causal step tracking: a step completes only when every acking consumer has drained it."""
-from absscale_ros.core.replay import Ack, due_wall_ns, StepTracker
+from absscale_ros.core.replay import Ack, due_wall_ns, StepTracker, StepWindow
 import pytest
 
 GRAPH = {
@@ -73,3 +73,27 @@ def test_output_announced_by_two_acks_is_awaited_once() -> None:
     t.on_ack(Ack('sfm', '/keyframes', 4))
     t.on_ack(Ack('selector', '/vertices', 4, ('/keyframes',)))
     assert t.done
+
+
+def test_window_keeps_several_frames_in_flight_and_completes_them_out_of_order() -> None:
+    w = StepWindow(lambda topic: GRAPH.get(topic, []), size=2)
+    w.start('/cam', 1, now=0.0)
+    assert not w.full
+    w.start('/cam', 2, now=0.1)
+    assert w.full
+    w.on_ack(Ack('ingest', '/cam', 2))  # frame 2 drains first: its slot frees, frame 1 stays
+    assert not w.full and not w.empty
+    assert not w.on_ack(Ack('ingest', '/cam', 7))  # a stamp not in flight changes nothing
+    assert w.on_ack(Ack('ingest', '/cam', 1))
+    assert w.empty
+
+
+def test_window_expires_only_steps_older_than_the_timeout() -> None:
+    w = StepWindow(lambda topic: GRAPH.get(topic, []), size=3)
+    w.start('/cam', 1, now=0.0)
+    w.start('/cam', 2, now=5.0)
+    w.start('/nobody', 3, now=5.0)  # no consumer: complete at once, never in flight
+    assert w.expire(now=10.0, timeout_s=8.0) == [(1, ['ingest on /cam'])]
+    assert not w.empty and w.expire(now=10.0, timeout_s=8.0) == []
+    with pytest.raises(ValueError):
+        StepWindow(lambda topic: [], size=0)
