@@ -96,47 +96,57 @@ def detect(image_bgr: npt.NDArray[np.uint8], camera: CameraModel, cfg: FeatureCo
     return Features(xy, undistort_px(camera, xy), desc[order], colours)
 
 
-def index(b: Features, cfg: FeatureConfig) -> cv2.DescriptorMatcher:
+class Index:
     """
-    A matcher trained on ``b``'s descriptors, to be queried by several keyframes: the k-d
-    trees of approximate matching are built once per keyframe instead of once per pair.
+    Two nearest neighbours among one keyframe's descriptors, built once and queried by several
+    keyframes: approximate k-d trees (``flann_checks`` > 0, SIFT) or brute force.
     """
-    if b.descriptors.dtype == np.float32 and cfg.flann_checks > 0:
-        cv2.setRNGSeed(0)  # the k-d trees are randomised: the same input gives the same matches
-        matcher = cv2.FlannBasedMatcher({'algorithm': 1, 'trees': 4},
-                                        {'checks': cfg.flann_checks})
-    else:
-        matcher = cv2.BFMatcher(cv2.NORM_L2 if b.descriptors.dtype == np.float32
-                                else cv2.NORM_HAMMING)
-    if len(b.descriptors):
-        matcher.add([b.descriptors])
-        matcher.train()
-    return matcher
+
+    def __init__(self, descriptors: npt.NDArray[np.generic], cfg: FeatureConfig) -> None:
+        self._n = len(descriptors)
+        self._checks = cfg.flann_checks if descriptors.dtype == np.float32 else 0
+        if self._checks and self._n >= 2:
+            cv2.setRNGSeed(0)  # the k-d trees are randomised: the same input, the same trees
+            self._flann = cv2.flann_Index(descriptors, {'algorithm': 1, 'trees': 4})
+        else:
+            self._bf = cv2.BFMatcher(cv2.NORM_L2 if descriptors.dtype == np.float32
+                                     else cv2.NORM_HAMMING)
+            self._train = descriptors
+
+    def knn2(self, query: npt.NDArray[np.generic]) -> tuple[IndexArray, FloatArray]:
+        """(M, 2) indices and (M, 2) distances of each query's two nearest neighbours."""
+        if self._n < 2 or len(query) == 0:
+            return np.zeros((0, 2), np.int64), np.zeros((0, 2))
+        if self._checks:
+            idx, d2 = self._flann.knnSearch(query, 2, params={'checks': self._checks})
+            return idx.astype(np.int64), np.sqrt(np.maximum(d2.astype(np.float64), 0.0))
+        knn = self._bf.knnMatch(query, self._train, k=2)
+        return (np.array([[p[0].trainIdx, p[1].trainIdx] for p in knn], np.int64).reshape(-1, 2),
+                np.array([[p[0].distance, p[1].distance] for p in knn]).reshape(-1, 2))
 
 
 def match(a: Features, b: Features, cfg: FeatureConfig,
-          b_subset: IndexArray | None = None,
-          b_index: cv2.DescriptorMatcher | None = None) -> IndexArray:
+          b_subset: IndexArray | None = None, b_index: Index | None = None) -> IndexArray:
     """
     Ratio-test, mutually consistent matches (no geometric check yet).
 
     :param b_subset: match only these keypoints of ``b`` (indices), or all when None.
-    :param b_index: ``index(b, cfg)``, reused across calls (ignored with ``b_subset``).
+    :param b_index: ``Index(b.descriptors, cfg)``, reused across calls (ignored with
+        ``b_subset``).
     :returns: (M, 2) int64 index pairs into ``a`` and ``b``.
     """
     b_idx = np.arange(len(b.descriptors)) if b_subset is None else np.asarray(b_subset)
     if len(a.descriptors) < 2 or len(b_idx) < 2:
         return np.zeros((0, 2), np.int64)
-    if b_subset is None and b_index is not None:
-        knn = b_index.knnMatch(a.descriptors, k=2)
+    if b_subset is not None or b_index is None:
+        b_index = Index(b.descriptors[b_idx], cfg)
     else:
-        sub = Features(b.keypoints_px, b.points_px, b.descriptors[b_idx], b.colours_rgb)
-        knn = index(sub, cfg).knnMatch(a.descriptors, k=2)
-    pairs = [(m.queryIdx, int(b_idx[m.trainIdx])) for m, n in (p for p in knn if len(p) == 2)
-             if m.distance < cfg.ratio * n.distance]
-    if not pairs:
+        b_idx = np.arange(len(b.descriptors))
+    nn, dist = b_index.knn2(a.descriptors)
+    good = np.flatnonzero(dist[:, 0] < cfg.ratio * dist[:, 1])
+    if not len(good):
         return np.zeros((0, 2), np.int64)
-    out = np.array(pairs, np.int64)
+    out = np.stack([good, b_idx[nn[good, 0]]], axis=1).astype(np.int64)
     # One keypoint of b may not be claimed twice: keep the first (best-ranked a) claim.
     _, first = np.unique(out[:, 1], return_index=True)
     return out[np.sort(first)]

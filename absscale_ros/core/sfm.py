@@ -135,7 +135,7 @@ class IncrementalSfm:
 
     def _verified(self, a: feat.Features, b: feat.Features,
                   b_subset: npt.NDArray[np.int64] | None = None,
-                  b_index: cv2.DescriptorMatcher | None = None) -> npt.NDArray[np.int64]:
+                  b_index: feat.Index | None = None) -> npt.NDArray[np.int64]:
         pairs = feat.match(a, b, self.cfg.feature_cfg, b_subset, b_index)
         if len(pairs) == 0:
             return pairs
@@ -237,7 +237,7 @@ class IncrementalSfm:
         """
         free = np.ones(len(kf.features.points_px), bool)
         out = {}
-        kf_index = feat.index(kf.features, self.cfg.feature_cfg)
+        kf_index = feat.Index(kf.features.descriptors, self.cfg.feature_cfg)
         for n in neighbours:
             subset = np.flatnonzero(free) if self.cfg.match_unclaimed_only else None
             out[n.kf_id] = pairs = self._verified(n.features, kf.features, subset, kf_index)

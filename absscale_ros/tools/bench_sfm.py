@@ -212,6 +212,39 @@ def score(engine: sfm.IncrementalSfm, poses: dict[int, np.ndarray],
     out['vertices_usable'] = len(good)
     if good:
         out['vertex_err_usable_max_pct'] = 100.0 * max(good) / extent_m
+    try:
+        out.update(cloud_lengths(engine, m, (s, R, t), gt))
+    except (ValueError, KeyError) as err:  # e.g. a gt.json of another renderer version
+        out['lengths_error'] = str(err)
+    return out
+
+
+def cloud_lengths(engine: sfm.IncrementalSfm, m: Any, sim3: tuple[float, np.ndarray, np.ndarray],
+                  gt: dict[str, Any]) -> dict[str, Any]:
+    """
+    The paper's Table 3 on the map after the camera-centre Sim(3): mean error of lengths
+    between landmarks (mm/m) against the true surface behind them, for every landmark and for
+    the published (well-triangulated) ones. The alignment's scale is the best possible, so this
+    is the map's shape error, without the scale node's.
+    """
+    from scipy.spatial.transform import Rotation
+    from absscale_ros.core import evaluation, landmark_quality
+    from absscale_ros.sim import groundtruth
+    frame_of = {int(f['stamp_ns']): k for k, f in enumerate(gt['frames'])}
+    ids = sorted(m.keyframes)
+    frames = [frame_of[m.keyframes[i].stamp_ns] for i in ids]
+    T = np.array([gt['frames'][k]['T_world_cam'] for k in frames], float)
+    poses = np.hstack([T[:, :3, 3], Rotation.from_matrix(T[:, :3, :3]).as_quat()])
+    camera = groundtruth.camera_from_json(gt['camera'])
+    out: dict[str, Any] = {}
+    published = landmark_quality.well_triangulated(m, engine.K, engine.cfg.cloud_cfg)
+    for name, lm_ids in (('all', list(m.landmarks)), ('published', published)):
+        pts = align.apply(*sim3, np.array([m.landmarks[i].point_world for i in lm_ids]))
+        truth = evaluation.landmark_truth(
+            pts, poses, frames, camera, lambda k, px: groundtruth.points_behind_pixels(gt, k, px))
+        st = evaluation.length_errors(pts, truth, np.random.default_rng(0))
+        out[f'lengths_{name}'] = {'landmarks': len(pts), 'pairs': st.count,
+                                  'mean_mm_per_m': st.mean, 'max_mm_per_m': st.max}
     return out
 
 
