@@ -37,6 +37,7 @@ PIPELINE: list[tuple[str, str, str]] = [
     ('scale', 'absscale_ros.nodes.scale', 'ScaleNode'),
     ('dense', 'absscale_ros.nodes.dense', 'DenseNode'),
 ]
+MEMORY_PERIOD_S = 5.0
 # With the dense node on, it owns /scaled_cloud and the sparse metric cloud moves here.
 SPARSE_METRIC_TOPIC = '/absscale/sparse_cloud_metric'
 
@@ -156,7 +157,8 @@ def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
             else SingleThreadedExecutor(context=context)
         for node in [*nodes.values(), monitor, replay]:
             executor.add_node(node)
-        wall_s = _spin(executor, replay, monitor, nodes, options, on_progress)
+        memory: list[list[float]] = []
+        wall_s = _spin(executor, replay, monitor, nodes, options, on_progress, memory)
         node_reports = children.stop() if children is not None else \
             {name: _node_report(node) for name, node in nodes.items()}
         report = {
@@ -169,6 +171,7 @@ def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
             'latency_s': _latency(replay.published_at, monitor.cloud_updates),
             # ru_maxrss is in KiB on Linux; with --processes this is the runner alone.
             'peak_rss_mb': round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
+            'rss_mb': memory,  # [wall s, frames replayed, resident MB] every MEMORY_PERIOD_S
             'detections': list(monitor.detections),
             '_latest': dict(monitor.latest),  # popped by the caller that writes files
         }
@@ -235,11 +238,18 @@ class _NodeProcesses:
 
 def _spin(executor: Any, replay: BagReplayNode, monitor: GraphMonitorNode,
           nodes: dict[str, Node], options: RunOptions,
-          on_progress: Callable[[Progress], None] | None) -> float:
-    """Spin until the bag is replayed and the graph has drained; return the wall time, s."""
+          on_progress: Callable[[Progress], None] | None, memory: list[list[float]]) -> float:
+    """
+    Spin until the bag is replayed and the graph has drained; return the wall time, s.
+
+    :param memory: receives [elapsed s, frames replayed, resident MB] samples (a long run's
+        growth shows whether anything accumulates per frame).
+    """
     t0 = time.monotonic()
     last = 0.0
     while True:
+        if time.monotonic() - t0 >= len(memory) * MEMORY_PERIOD_S:
+            memory.append([round(time.monotonic() - t0, 1), replay.steps, _resident_mb()])
         done = replay.drained
         if done:
             _drain(executor, monitor, options.drain_s)
@@ -250,6 +260,13 @@ def _spin(executor: Any, replay: BagReplayNode, monitor: GraphMonitorNode,
         if done:
             return now - t0
         executor.spin_once(timeout_sec=0.05)
+
+
+def _resident_mb() -> float:
+    """This process's resident set now (ru_maxrss is only the peak)."""
+    with open('/proc/self/statm') as f:
+        pages = int(f.read().split()[1])
+    return round(pages * os.sysconf('SC_PAGE_SIZE') / 2**20, 1)
 
 
 def _progress(replay: BagReplayNode, nodes: dict[str, Node], elapsed_s: float) -> Progress:

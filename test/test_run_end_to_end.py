@@ -25,6 +25,8 @@ def test_run_writes_report_picture_and_recording(tmp_path: Path) -> None:
         assert node in report['nodes'], sorted(report['nodes'])
     assert report['messages_per_topic'].get('/absscale/frames') == 12
     assert len(report['detections']) == 12  # one vertices cloud per frame, empty or not
+    first = report['rss_mb'][0]  # memory over the run: [wall s, frames, resident MB]
+    assert first[0] == 0.0 and 50 < first[2] <= report['peak_rss_mb']
     assert (out / 'run.png').stat().st_size > 10_000
     with bagio.BagReader(rec) as reader:
         topics = reader.topics
