@@ -101,7 +101,7 @@ def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks:
             ids[v] = targets.cube_vertex_id(int(m), k)
     score = float(np.mean([f.supports.mean() for f in faces]))
     # A strip's ends follow the cube's edges where a believed pose puts them.
-    polygons = tuple((f.colour, cube_geometry.complete_strip(proj, f.corners_px)
+    polygons = tuple((f.colour, cube_geometry.complete_strip(*proj, f.corners_px)
                       if f.thin and proj is not None else f.corners_px) for f in faces)
     return targets.TargetDetection(
         target_type='cube', name='cube', vertices_px=vertices, vertex_ids=ids,

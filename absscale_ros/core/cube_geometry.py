@@ -5,8 +5,9 @@ A face whose side is cut by an occluder, or a box of a cube colour beside the cu
 corners that are not cube vertices; a wrong vertex gives a wrong scale downstream. Every
 whole face is a square, so its four corners fix the cube's pose (IPPE on a square, both of
 its solutions; the cube lies behind the face as seen from the camera). A pose is believed when
-another detected face (whole or edge-on) outlines a side face that the posed cube shows, or
-lies within one: a face cut by a post looks like a square seen obliquely, but the cube posed
+another whole face found outlines a side face that the posed cube shows, or lies within one,
+or a face seen edge-on (a strip along a side) has its far side where the pose puts that face's
+far corners: a face cut by a post looks like a square seen obliquely, but the cube posed
 on it does not show its neighbours where they are. A vertex is kept only when every believed
 pose puts it within ``tol_frac`` of the posing face's size of a projected cube vertex; a poor
 pose then costs a true vertex rather than adding a wrong one.
@@ -16,6 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 Array = npt.NDArray[np.float64]
+Posed = tuple[Array, float]  # (8, 2) projected cube vertices, their tolerance px
 # The unit square in the order IPPE_SQUARE wants (x right, y up in the model plane).
 _SQUARE = np.array([[-0.5, 0.5, 0.0], [0.5, 0.5, 0.0], [0.5, -0.5, 0.0], [-0.5, -0.5, 0.0]])
 # Side faces of the cube posed on a face (corners 0-3, the four behind it 4-7), each ordered
@@ -23,6 +25,10 @@ _SQUARE = np.array([[-0.5, 0.5, 0.0], [0.5, 0.5, 0.0], [0.5, -0.5, 0.0], [-0.5, 
 _SIDES = ((1, 0, 4, 5), (2, 1, 5, 6), (3, 2, 6, 7), (0, 3, 7, 4))
 MIN_IOU = 0.4  # a detected face and a face the posed cube shows agree above this overlap
 MIN_INSIDE = 0.8  # ... or when this share of the detected face lies within the shown face
+# A strip agrees with a pose when the far corners of its face lie within this many strip widths
+# of its measured far side. Twice would admit the cube seen square-on (its neighbours' depth is
+# posed loosely) but also a box of one colour just behind a box of another.
+STRIP_SLACK = 0.5
 
 
 def default_K(shape: tuple[int, ...], focal_frac: float) -> Array:
@@ -67,28 +73,27 @@ def shown_sides(proj: Array) -> list[npt.NDArray[np.float32]]:
             for s, a in zip(_SIDES, areas[1:]) if a * areas[0] > 0.0]
 
 
-def agrees(shown: list[npt.NDArray[np.float32]], found: npt.NDArray[np.float32],
-           whole: bool) -> bool:
+def agrees(shown: list[npt.NDArray[np.float32]], found: npt.NDArray[np.float32]) -> bool:
     """
-    Return True when the convex outline ``found`` outlines one of the ``shown`` side faces,
-    or, for a ``whole`` (not edge-on) face, lies within one (the visible part of a face an
-    occluder cuts; a strip along a side lies within too many faces to tell).
+    Return True when the convex outline ``found`` of a whole face outlines one of the
+    ``shown`` side faces, or lies within one (the visible part of a face an occluder cuts).
     """
     area = cv2.contourArea(found)
     for poly in shown:
         inter = cv2.intersectConvexConvex(poly, found)[0]
         iou = inter / max(cv2.contourArea(poly) + area - inter, 1e-9)
-        if iou >= MIN_IOU or (whole and inter >= MIN_INSIDE * area):
+        if iou >= MIN_IOU or inter >= MIN_INSIDE * area:
             return True
     return False
 
 
 def explained(vertices_px: Array, posing: list[int], polygons: list[Array], thin: list[bool],
-              Ks: list[Array], tol_frac: float) -> tuple[npt.NDArray[np.bool_], Array | None]:
+              Ks: list[Array], tol_frac: float) -> tuple[npt.NDArray[np.bool_], Posed | None]:
     """
     Return (V,) True for vertices that every believed single-face cube pose explains, with
     the camera of ``Ks`` (several when the focal length is unknown) that explains the most,
-    and the (8, 2) projected cube of the believed pose that explains the most (or None).
+    and ((8, 2) projected cube, its tolerance px) of the believed pose that explains the most
+    (or None).
 
     :param vertices_px: (V, 2) assembled cube vertices.
     :param posing: indices into ``polygons`` of the faces that pose the cube (whole faces,
@@ -99,7 +104,7 @@ def explained(vertices_px: Array, posing: list[int], polygons: list[Array], thin
         fraction of the longest side of the face that gave the pose.
     :returns: all False and None when no pose is believed.
     """
-    best: tuple[npt.NDArray[np.bool_], Array | None] = (np.zeros(len(vertices_px), bool), None)
+    best: tuple[npt.NDArray[np.bool_], Posed | None] = (np.zeros(len(vertices_px), bool), None)
     for K in Ks:
         keep, proj = _explained(vertices_px, posing, polygons, thin, K, tol_frac)
         if keep.sum() > best[0].sum():
@@ -108,8 +113,8 @@ def explained(vertices_px: Array, posing: list[int], polygons: list[Array], thin
 
 
 def _explained(vertices_px: Array, posing: list[int], polygons: list[Array], thin: list[bool],
-               K: Array, tol_frac: float) -> tuple[npt.NDArray[np.bool_], Array | None]:
-    keep, best, best_n = None, None, -1
+               K: Array, tol_frac: float) -> tuple[npt.NDArray[np.bool_], Posed | None]:
+    keep, best, best_n = None, None, -1  # type: ignore[var-annotated]
     hulls = [cv2.convexHull(p.astype(np.float32)) for p in polygons]
     for f in posing:
         corners = polygons[f]
@@ -117,26 +122,31 @@ def _explained(vertices_px: Array, posing: list[int], polygons: list[Array], thi
         tol = max(3.0, tol_frac * side)
         for proj in cube_projections(corners, K):
             shown = shown_sides(proj)
-            if not any(agrees(shown, hulls[g], not thin[g]) for g in range(len(polygons))
-                       if g != f):
+            if not any(strip_far_corners(proj, polygons[g], tol, STRIP_SLACK) is not None
+                       if thin[g]
+                       else agrees(shown, hulls[g]) for g in range(len(polygons)) if g != f):
                 continue
             near = np.hypot(*(vertices_px[:, None, :] - proj[None, :, :]).transpose(2, 0, 1))
             ok = near.min(axis=1) < tol
             keep = ok if keep is None else keep & ok
             if ok.sum() > best_n:
-                best, best_n = proj, int(ok.sum())
+                best, best_n = (proj, tol), int(ok.sum())
     return (np.zeros(len(vertices_px), dtype=bool) if keep is None else keep), best
 
 
-def complete_strip(proj: Array, strip: Array) -> Array:
+def strip_far_corners(proj: Array, strip: Array, tol: float, slack: float) -> Array | None:
     """
-    Return the (4, 2) outline of a face seen edge-on, ``strip`` = [c0, far0, far1, c1] (its
-    far corners measured along the shared side's normal only): the far corners of that face
-    on the posed cube ``proj`` (8, 2), when both lie near the measured far side (within half
-    the strip's width, 3 px at least). Unchanged otherwise.
+    Return the (2, 2) far corners that the posed cube ``proj`` (8, 2) gives a face seen
+    edge-on, ``strip`` = [c0, far0, far1, c1] (its far corners measured along the shared side's
+    normal only), or None when the pose does not fit the strip: c0 and c1 each within ``tol``
+    of a cube vertex, and the face's far corners near the measured far side (within ``slack``
+    times the strip's width, 3 px at least) and beside the shared side, not beyond it.
     """
     c0, far0, far1, c1 = strip
-    i0, i1 = (int(np.argmin(np.hypot(*(proj - c).T))) for c in (c0, c1))
+    d0, d1 = (np.hypot(*(proj - c).T) for c in (c0, c1))
+    i0, i1 = int(np.argmin(d0)), int(np.argmin(d1))
+    if max(d0[i0], d1[i1]) > tol:
+        return None
     best = None
     for face in ((0, 1, 2, 3),) + _SIDES + ((4, 5, 6, 7),):
         if i0 not in face or i1 not in face:
@@ -145,16 +155,29 @@ def complete_strip(proj: Array, strip: Array) -> Array:
         if (k1 - k0) % 4 not in (1, 3):
             continue
         step = 1 if (k1 - k0) % 4 == 1 else -1  # far corners: the face's other two
-        j0, j1 = face[(k0 - step) % 4], face[(k1 + step) % 4]
-        cost = np.hypot(*(proj[j0] - far0)) + np.hypot(*(proj[j1] - far1))
+        far = proj[[face[(k0 - step) % 4], face[(k1 + step) % 4]]]
+        cost = np.hypot(*(far[0] - far0)) + np.hypot(*(far[1] - far1))
         if best is None or cost < best[0]:
-            best = (cost, proj[j0], proj[j1])
+            best = (cost, far)
     if best is None:
-        return strip
+        return None
+    far = best[1]
     far_line = np.cross([*far0, 1.0], [*far1, 1.0])
     far_line /= max(float(np.hypot(*far_line[:2])), 1e-12)
     width = max(np.hypot(*(far0 - c0)), np.hypot(*(far1 - c1)))
-    off = [abs(float(far_line @ [*p, 1.0])) for p in best[1:]]
-    if max(off) > max(3.0, 0.5 * width):
-        return strip
-    return np.array([c0, best[1], best[2], c1])
+    along = (far - c0) @ (c1 - c0) / max(float((c1 - c0) @ (c1 - c0)), 1e-9)
+    if np.abs(far @ far_line[:2] + far_line[2]).max() > max(3.0, slack * width):
+        return None
+    if along.min() < -0.3 or along.max() > 1.3:
+        return None
+    return far
+
+
+def complete_strip(proj: Array, tol: float, strip: Array) -> Array:
+    """
+    Return the (4, 2) outline of a face seen edge-on, ``strip`` = [c0, far0, far1, c1]: its
+    far corners moved to where the posed cube ``proj`` puts them when they lie within half the
+    strip's width of its measured far side (``strip_far_corners``), unchanged otherwise.
+    """
+    far = strip_far_corners(proj, strip, tol, 0.5)
+    return strip if far is None else np.array([strip[0], far[0], far[1], strip[3]])

@@ -93,6 +93,7 @@ def strip_faces(image_bgr: npt.NDArray[np.uint8], corners: list[Array], colours:
     out = []
     for f, (cs, colour) in enumerate(zip(corners, colours)):
         centre = cs.mean(axis=0)
+        found: list[tuple[int, str, Array, float]] = []
         for i in range(4):
             c0, c1 = cs[i], cs[(i + 1) % 4]
             length = float(np.hypot(*(c1 - c0)))
@@ -117,5 +118,10 @@ def strip_faces(image_bgr: npt.NDArray[np.uint8], corners: list[Array], colours:
                 if min(w0, w1) < 0.5 * min_width:
                     continue
                 strip = np.array([c0, c0 + w0 * n, c1 + w1 * n, c1])
-                out.append((other, strip, float(ok.mean())))
+                found.append((i, other, strip, float(ok.mean())))
+        # Faces next to one face differ in colour: one colour on two neighbouring sides is a
+        # box behind, not the cube.
+        behind = {c for i, c, _, _ in found for j, d, _, _ in found
+                  if c == d and (j - i) % 4 in (1, 3)}
+        out += [(c, strip, sup) for _, c, strip, sup in found if c not in behind]
     return out
