@@ -79,7 +79,8 @@ def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks:
     posing = [_posing(f) for f in faces]
     keep, proj = cube_geometry.explained(vertices, list(np.flatnonzero(posing)),
                                          [f.corners_px for f in faces],
-                                         [f.thin for f in faces], Ks, shape_tol_frac)
+                                         [f.thin for f in faces],
+                                         [f.runs_on for f in faces], Ks, shape_tol_frac)
     h, w = shape[:2]
     keep &= (vertices >= BORDER_PX).all(axis=1) & (vertices[:, 0] <= w - 1 - BORDER_PX) & (
         vertices[:, 1] <= h - 1 - BORDER_PX)

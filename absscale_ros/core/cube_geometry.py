@@ -26,9 +26,8 @@ _SIDES = ((1, 0, 4, 5), (2, 1, 5, 6), (3, 2, 6, 7), (0, 3, 7, 4))
 MIN_IOU = 0.4  # a detected face and a face the posed cube shows agree above this overlap
 MIN_INSIDE = 0.8  # ... or when this share of the detected face lies within the shown face
 # A strip agrees with a pose when the far corners of its face lie within this many strip widths
-# of its measured far side. Twice would admit the cube seen square-on (its neighbours' depth is
-# posed loosely) but also a box of one colour just behind a box of another.
-STRIP_SLACK = 0.5
+# of its measured far side: a face seen nearly square-on poses its neighbours' depth loosely.
+STRIP_SLACK = 2.0
 
 
 def default_K(shape: tuple[int, ...], focal_frac: float) -> Array:
@@ -88,7 +87,8 @@ def agrees(shown: list[npt.NDArray[np.float32]], found: npt.NDArray[np.float32])
 
 
 def explained(vertices_px: Array, posing: list[int], polygons: list[Array], thin: list[bool],
-              Ks: list[Array], tol_frac: float) -> tuple[npt.NDArray[np.bool_], Posed | None]:
+              mute: list[bool], Ks: list[Array], tol_frac: float
+              ) -> tuple[npt.NDArray[np.bool_], Posed | None]:
     """
     Return (V,) True for vertices that every believed single-face cube pose explains, with
     the camera of ``Ks`` (several when the focal length is unknown) that explains the most,
@@ -100,20 +100,23 @@ def explained(vertices_px: Array, posing: list[int], polygons: list[Array], thin
         not seen too obliquely).
     :param polygons: (4, 2) outlines of every face of this cube found (whole or edge-on).
     :param thin: per polygon, True for a face seen edge-on (``cube_strips``).
+    :param mute: per polygon, True for a face that cannot make a pose believed (a strip whose
+        colour runs on past its side).
     :param tol_frac: largest distance of a vertex from its projected cube vertex, as a
         fraction of the longest side of the face that gave the pose.
     :returns: all False and None when no pose is believed.
     """
     best: tuple[npt.NDArray[np.bool_], Posed | None] = (np.zeros(len(vertices_px), bool), None)
     for K in Ks:
-        keep, proj = _explained(vertices_px, posing, polygons, thin, K, tol_frac)
+        keep, proj = _explained(vertices_px, posing, polygons, thin, mute, K, tol_frac)
         if keep.sum() > best[0].sum():
             best = keep, proj
     return best
 
 
 def _explained(vertices_px: Array, posing: list[int], polygons: list[Array], thin: list[bool],
-               K: Array, tol_frac: float) -> tuple[npt.NDArray[np.bool_], Posed | None]:
+               mute: list[bool], K: Array, tol_frac: float
+               ) -> tuple[npt.NDArray[np.bool_], Posed | None]:
     keep, best, best_n = None, None, -1  # type: ignore[var-annotated]
     hulls = [cv2.convexHull(p.astype(np.float32)) for p in polygons]
     for f in posing:
@@ -124,7 +127,8 @@ def _explained(vertices_px: Array, posing: list[int], polygons: list[Array], thi
             shown = shown_sides(proj)
             if not any(strip_far_corners(proj, polygons[g], tol, STRIP_SLACK) is not None
                        if thin[g]
-                       else agrees(shown, hulls[g]) for g in range(len(polygons)) if g != f):
+                       else agrees(shown, hulls[g]) for g in range(len(polygons))
+                       if g != f and not mute[g]):
                 continue
             near = np.hypot(*(vertices_px[:, None, :] - proj[None, :, :]).transpose(2, 0, 1))
             ok = near.min(axis=1) < tol

@@ -76,9 +76,10 @@ def _half_step(bgr: Array, w: Array, offs: Array) -> Array:
 
 def strip_faces(image_bgr: npt.NDArray[np.uint8], corners: list[Array], colours: list[str],
                 masks_of: MaskFn, max_width: float, min_width: float = 1.5,
-                min_frac: float = 0.5) -> list[tuple[str, Array, float]]:
+                min_frac: float = 0.5) -> list[tuple[str, Array, float, bool]]:
     """
-    Return (colour, (4, 2) corners px, support) of thin strips along unshared face sides.
+    Return (colour, (4, 2) corners px, support, runs on) of thin strips along unshared face
+    sides; "runs on" when the strip's colour goes on past an end of the side (``_runs_on``).
 
     Strip corners are ``[c_i, far_i, far_i1, c_i1]`` for side ``c_i -> c_i1`` of its face.
 
@@ -93,7 +94,7 @@ def strip_faces(image_bgr: npt.NDArray[np.uint8], corners: list[Array], colours:
     out = []
     for f, (cs, colour) in enumerate(zip(corners, colours)):
         centre = cs.mean(axis=0)
-        found: list[tuple[int, str, Array, float]] = []
+        found: list[tuple[int, str, Array, float, bool]] = []
         for i in range(4):
             c0, c1 = cs[i], cs[(i + 1) % 4]
             length = float(np.hypot(*(c1 - c0)))
@@ -118,10 +119,29 @@ def strip_faces(image_bgr: npt.NDArray[np.uint8], corners: list[Array], colours:
                 if min(w0, w1) < 0.5 * min_width:
                     continue
                 strip = np.array([c0, c0 + w0 * n, c1 + w1 * n, c1])
-                found.append((i, other, strip, float(ok.mean())))
+                runs_on = _runs_on(image_bgr, strip, other, masks_of)
+                found.append((i, other, strip, float(ok.mean()), runs_on))
         # Faces next to one face differ in colour: one colour on two neighbouring sides is a
         # box behind, not the cube.
-        behind = {c for i, c, _, _ in found for j, d, _, _ in found
+        behind = {c for i, c, *_ in found for j, d, *_ in found
                   if c == d and (j - i) % 4 in (1, 3)}
-        out += [(c, strip, sup) for _, c, strip, sup in found if c not in behind]
+        out += [(c, strip, sup, on) for _, c, strip, sup, on in found if c not in behind]
     return out
+
+
+def _runs_on(image_bgr: npt.NDArray[np.uint8], strip: Array, colour: str, masks_of: MaskFn,
+             min_frac: float = 0.6) -> bool:
+    """
+    Return True when the strip's colour goes on past either end of its side (mid-width): a
+    box of that colour behind the face, or the same face running on along a neighbouring
+    face, so the strip's own outline says nothing about a cube face ending there.
+    """
+    c0, far0, far1, c1 = strip
+    length = max(float(np.hypot(*(c1 - c0))), 1e-9)
+    u = (c1 - c0) / length
+    d = 3.0 + np.linspace(0.0, max(6.0, 0.2 * length), 8)
+    mid0, mid1 = 0.5 * (c0 + far0), 0.5 * (c1 + far1)
+    xy = np.stack([mid0 - d[:, None] * u, mid1 + d[:, None] * u]).astype(np.float32)
+    bgr = cv2.remap(image_bgr, xy[..., 0], xy[..., 1], cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_REPLICATE)
+    return bool(masks_of(bgr)[colour].mean(axis=1).max() >= min_frac)

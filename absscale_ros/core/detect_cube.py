@@ -99,7 +99,8 @@ class CubeConfig:
 class Face:
     """
     A detected face: colour, (4, 2) corners px, (4, 3) side lines, side supports; ``thin``
-    for a strip seen edge-on (``cube_strips``: only its corners 0 and 3 are measured).
+    for a strip seen edge-on (``cube_strips``: only its corners 0 and 3 are measured), and
+    ``runs_on`` for a strip whose colour goes on past its side (no evidence for the cube).
     """
 
     colour: str
@@ -107,6 +108,7 @@ class Face:
     lines: Array
     supports: Array
     thin: bool = False
+    runs_on: bool = False
 
 
 def colour_mask(hsv: npt.NDArray[np.uint8], hue_deg: tuple[float, float], cfg: CubeConfig
@@ -231,13 +233,13 @@ def _strips(image_bgr: npt.NDArray[np.uint8], faces: list[Face], cfg: CubeConfig
         hsv = cv2.cvtColor(bgr, cv2.COLOR_BGR2HSV)
         return {c: colour_mask(hsv, hue, cfg) > 0 for c, hue in cfg.hue_ranges().items()}
     out = []
-    for colour, corners, support in cube_strips.strip_faces(
+    for colour, corners, support, runs_on in cube_strips.strip_faces(
             image_bgr, [f.corners_px for f in faces], [f.colour for f in faces], masks_of,
             cfg.strip_max_px):
         centre = corners.mean(axis=0)
         ls = np.array([lines.line_through(corners[k], corners[(k + 1) % 4], centre)
                        for k in range(4)])
-        out.append(Face(colour, corners, ls, np.full(4, support), thin=True))
+        out.append(Face(colour, corners, ls, np.full(4, support), thin=True, runs_on=runs_on))
     return out
 
 
