@@ -36,9 +36,10 @@ def well_triangulated(m: sfm_map.SfmMap, K: FloatArray, cfg: CloudConfig) -> lis
         return []
     lms = [m.landmarks[i] for i in ids]
     counts = np.array([len(lm.obs_px) for lm in lms])
-    kf_ids = [k for lm in lms for k in lm.obs_px]
-    uv = np.array([x for lm in lms for x in lm.obs_px.values()])
-    T = np.array([m.keyframes[k].T_world_cam for k in kf_ids])
+    kf_order = {k: n for n, k in enumerate(m.keyframes)}
+    kf_row = np.fromiter((kf_order[k] for lm in lms for k in lm.obs_px), np.int64, counts.sum())
+    uv = np.concatenate([x for lm in lms for x in lm.obs_px.values()]).reshape(-1, 2)
+    T = np.array([kf.T_world_cam for kf in m.keyframes.values()])[kf_row]
     pts = np.repeat(np.array([lm.point_world for lm in lms]), counts, axis=0)
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     p_cam = np.einsum('nji,nj->ni', T[:, :3, :3], pts - T[:, :3, 3])

@@ -148,12 +148,16 @@ class SfmNode(Node):
                                'update_ms_p95': float(np.percentile(times, 95)),
                                'statuses': dict(self.statuses)}
         if self.engine is not None:
-            m = sfm_outputs.best_segment(self.engine).map
+            seg = sfm_outputs.best_segment(self.engine)
+            m = seg.map
+            # Per keyframe the update's own RMS (the newest keyframes) when it is of this segment.
+            rms = self._last.reprojection_rms_px if not full_rms and self._last is not None \
+                and seg is self.engine.current else m.reprojection_rms_px(
+                    self.engine.K, None if full_rms else set(sorted(m.keyframes)[-3:]))
             out.update(keyframes_registered=len(m.keyframes), landmarks=len(m.landmarks),
                        segments=len(self.engine.segments),
                        target_vertices=sum(lm.label is not None for lm in m.landmarks.values()),
-                       reprojection_rms_px=m.reprojection_rms_px(
-                           self.engine.K, None if full_rms else set(sorted(m.keyframes)[-3:])),
+                       reprojection_rms_px=rms,
                        keyframes_registered_all=sum(len(s.map.keyframes)
                                                     for s in self.engine.segments))
         return out
