@@ -31,14 +31,18 @@ def cluster_corners(faces: list['Face'], merge_frac: float) -> npt.NDArray[np.in
     """Return a cluster label per face corner (F*4,), merging near corners of other faces."""
     pts = np.concatenate([f.corners_px for f in faces])
     owner = np.repeat(np.arange(len(faces)), 4)
-    side = np.array([np.hypot(*(f.corners_px - np.roll(f.corners_px, -1, 0)).T).min()
-                     for f in faces])
+    sides = [np.hypot(*(f.corners_px - np.roll(f.corners_px, -1, 0)).T) for f in faces]
+    longest, shortest = np.array([s.max() for s in sides]), np.array([s.min() for s in sides])
     parent = list(range(len(pts)))
     for i in range(len(pts)):
         for j in range(i + 1, len(pts)):
             if owner[i] == owner[j] or faces[owner[i]].colour == faces[owner[j]].colour:
                 continue
-            tol = max(3.0, merge_frac * min(side[owner[i]], side[owner[j]]))
+            # A fraction of the longer sides (a narrow face's short side would allow too
+            # little), but never so much that both ends of a short side could merge.
+            a, b = owner[i], owner[j]
+            tol = max(3.0, min(merge_frac * min(longest[a], longest[b]),
+                               0.4 * min(shortest[a], shortest[b])))
             if np.hypot(*(pts[i] - pts[j])) < tol:
                 parent[find(parent, i)] = find(parent, j)
     return np.array([find(parent, i) for i in range(len(pts))], dtype=np.int64)
