@@ -27,7 +27,7 @@ MIN_IOU = 0.4  # a detected face and a face the posed cube shows agree above thi
 MIN_INSIDE = 0.8  # ... or when this share of the detected face lies within the shown face
 # A strip agrees with a pose when the far corners of its face lie within this many strip widths
 # of its measured far side: a face seen nearly square-on poses its neighbours' depth loosely.
-STRIP_SLACK = 2.0
+STRIP_SLACK = 3.0
 
 
 def default_K(shape: tuple[int, ...], focal_frac: float) -> Array:
