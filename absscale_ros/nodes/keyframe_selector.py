@@ -36,6 +36,7 @@ class KeyframeSelectorNode(Node):
         self._camera: Any = None
         self._reasons: Counter[str] = Counter()
         self.keyframe_stamps_ns: list[int] = []
+        self.unpaired = 0  # frames decided without their vertices
         self._times_ms: list[float] = []
         self._kf_pub = self.create_publisher(Image, '/absscale/keyframes', common.RELIABLE)
         self._kv_pub = self.create_publisher(PointCloud2, '/absscale/keyframe_vertices',
@@ -67,11 +68,14 @@ class KeyframeSelectorNode(Node):
         self._settle(self._pairer.add_second(conversions.stamp_to_ns(msg.header.stamp), msg))
 
     def _settle(self, result: pairing.Pairing[Image, PointCloud2]) -> None:
+        # A frame whose vertices never came (live: the detector skipped it) is still decided
+        # on, without the target's area, so the selector keeps tracking. It is older than the
+        # pairs just made, so it goes first.
+        for _, frame in result.dropped_first:
+            self.unpaired += 1
+            self._decide(frame, None)
         for _, frame, vertices in result.pairs:
             self._decide(frame, vertices)
-        for _, frame in result.dropped_first:
-            self._reasons['unpaired'] += 1
-            self._ack.ack(frame.header.stamp, self._frames_sub.topic_name)
         for _, vertices in result.dropped_second:
             self._ack.ack(vertices.header.stamp, self._vert_sub.topic_name)
 
@@ -113,6 +117,7 @@ class KeyframeSelectorNode(Node):
         times = np.array(self._times_ms or [np.nan])
         return {'frames': int(sum(self._reasons.values())),
                 'keyframes': len(self.keyframe_stamps_ns),
+                'unpaired': self.unpaired,
                 'keyframe_stamps_ns': list(self.keyframe_stamps_ns),
                 'decisions': dict(self._reasons),
                 'tracking_lost': self._selector.lost_count,

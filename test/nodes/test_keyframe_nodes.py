@@ -132,3 +132,23 @@ def test_selector_pairs_frames_with_vertices_by_stamp(context) -> None:
     assert selector.keyframe_stamps_ns == [10]  # the first sharp frame starts the map
     assert spin_until(executor, lambda: _stamps(probe.got['/absscale/keyframe_vertices']) == [10])
     assert _stamps(probe.got['/absscale/keyframes']) == [10]
+
+
+def test_selector_decides_frames_whose_vertices_never_come(context) -> None:
+    """Live, the detector skips frames when behind: the selector must not stall on them."""
+    selector = KeyframeSelectorNode(context=context, parameter_overrides=[
+        Parameter('pair_depth', value=2)])
+    probe = Probe(context=context)
+    executor = _executor(context, selector, probe)
+    assert spin_until(executor, lambda: probe.vertices.get_subscription_count() == 1
+                      and probe.frames.get_subscription_count() == 2)
+    for stamp in (20, 21, 22):  # no vertices for any of them
+        probe.frames.publish(_image(320, 240, stamp))
+    # pair_depth 2: the oldest is given up on waiting and decided alone, and it is the first
+    # sharp frame, so it starts the map with an empty vertices cloud.
+    assert spin_until(executor, lambda: selector.report()['frames'] == 1)
+    assert selector.report()['unpaired'] == 1 and selector.keyframe_stamps_ns == [20]
+    assert spin_until(executor, lambda: _stamps(probe.got['/absscale/keyframe_vertices']) == [20])
+    assert probe.got['/absscale/keyframe_vertices'][0].width == 0
+    assert spin_until(executor, lambda: [(a.stamp_ns, a.outputs) for a in probe.acks] == [
+        (20, ('/absscale/keyframe_vertices', '/absscale/keyframes'))])
