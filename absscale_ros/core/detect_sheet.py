@@ -12,14 +12,17 @@ rectangle it implies has the configured aspect ratio. When no whole sheet is fou
 regions are tried as a sheet with one corner hidden (``sheet_partial``, ``min_seen``).
 """
 from dataclasses import dataclass
+from typing import Callable
 
 import cv2
 import numpy as np
 import numpy.typing as npt
 
-from absscale_ros.core import lines, quads, sheet_candidates, sheet_partial, sides, targets
+from absscale_ros.core import (lines, quads, sheet_candidates, sheet_partial, sheet_stub, sides,
+                               targets)
 
 Array = npt.NDArray[np.float64]
+STUB_MAX_HYPS = 8  # stub hypotheses refined per frame at most (deepest occluder cut first)
 
 
 @dataclass(frozen=True)
@@ -60,6 +63,9 @@ class SheetConfig:
     :param ridge_ratio: ``sides.ridge_ratio`` above which a side is such a line.
     :param min_seen: a hidden corner is extrapolated only when both sides meeting there are
         seen over at least this fraction of their length (1.0 turns it off).
+    :param stub_px: a sheet whose hidden corner covers nearly all of one side is recovered
+        from the camera intrinsics when that side shows an edge over this many px next to
+        its seen corner (``sheet_stub``; 0 turns it off).
     """
 
     sheet: str = 'letter'
@@ -85,6 +91,7 @@ class SheetConfig:
     max_ridges: int = 1
     ridge_ratio: float = 0.3
     min_seen: float = 0.4
+    stub_px: float = 8.0
 
     def __post_init__(self) -> None:
         if not 0.0 < self.min_area_frac < 1.0:
@@ -159,8 +166,18 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
         for quad_full, line_band in _line_candidates(image_bgr, cfg):
             _accept(image_bgr, quad_full, line_band, cfg, K, found)
     if not found and cfg.min_seen < 1.0:
-        pents = sheet_candidates.pentagons(work, regions, cfg)
-        _accept_partial(image_bgr, [(p + 0.5) / scale - 0.5 for p in pents], band, cfg, K, found)
+        pents = [(p + 0.5) / scale - 0.5 for p in sheet_candidates.pentagons(regions)]
+        _accept_partial(image_bgr, [sheet_partial.hypotheses(p, cfg.min_seen) for p in pents],
+                        lambda hyp: sheet_partial.refine(image_bgr, hyp, band), band, cfg, K,
+                        found)
+    if not found and cfg.stub_px > 0.0:
+        K_ = K if K is not None else _guess_K(cfg.focal_frac, image_bgr.shape)
+        hyps = sheet_stub.first_hypotheses(regions, scale, K_, cfg.stub_px, STUB_MAX_HYPS)
+        groups = [hyps]  # one stub sheet at most: a fallback
+        aspect = cfg.model().aspect
+        _accept_partial(image_bgr, groups,
+                        lambda hyp: sheet_stub.refine(image_bgr, hyp, band, K_, aspect), band,
+                        cfg, K, found, rough_aspect=False)
     found.sort(key=lambda f: -f[0])
     return [_detection(f, cfg.model()) for f in found]
 
@@ -190,6 +207,7 @@ def _line_candidates(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig
 # A sheet found: (score, (4, 2) corners, outline of the seen part, (4,) vertex scores or None).
 Found = tuple[float, Array, Array, Array | None]
 Refined = tuple[Array, Array, Array, Array, Array]
+Refined6 = tuple[Array, Array, Array, Array, Array, Array]  # and the seen outline
 
 
 def _accept(image_bgr: npt.NDArray[np.uint8], quad_full: Array, band: float, cfg: SheetConfig,
@@ -209,33 +227,58 @@ def _accept(image_bgr: npt.NDArray[np.uint8], quad_full: Array, band: float, cfg
         found.append((float(refined[1].mean()), refined[0], refined[0], None))
 
 
-def _accept_partial(image_bgr: npt.NDArray[np.uint8], pents: list[Array], band: float,
-                    cfg: SheetConfig, K: Array | None, found: list[Found]) -> None:
+def _accept_partial(image_bgr: npt.NDArray[np.uint8], groups: list[list[sheet_partial.Partial]],
+                    refine: Callable[[sheet_partial.Partial], Refined6 | None], band: float,
+                    cfg: SheetConfig, K: Array | None, found: list[Found],
+                    rough_aspect: bool = True) -> None:
     """
-    Try every hidden-corner hypothesis of the pentagons; keep the best supported per pentagon.
+    Try every hidden-corner hypothesis of each group (one seen region); keep the best
+    supported per group. ``rough_aspect``: test the aspect of the rough corners first (not
+    for stubs, whose rough hidden corner comes from short rough sides).
 
     The extrapolated corner scores half the sheet's support times the smaller seen fraction of
     its two sides; the sheet's score is the mean over its corners.
     """
-    for pent in pents:
-        best: Found | None = None
-        for hyp in sheet_partial.hypotheses(pent, cfg.min_seen):
+    for group in groups:
+        best: tuple[float, Found] | None = None
+        for hyp in group:
             if sheet_candidates.touches_border(hyp.corners, image_bgr.shape, band):
                 continue  # a corner beyond the border: no occluder to show for the cut (tiles)
-            if not _aspect_ok(hyp.corners, image_bgr.shape, cfg, K, cfg.rough_aspect_tol):
+            if rough_aspect and \
+                    not _aspect_ok(hyp.corners, image_bgr.shape, cfg, K, cfg.rough_aspect_tol):
                 continue  # rough corners: a looser test here, the exact one after refinement
             if _tile(image_bgr, hyp.corners, cfg, hyp.seen_ends):
                 continue
-            out = sheet_partial.refine(image_bgr, hyp, band)
+            out = refine(hyp)
             if out is None or not _big_enough(out[5], image_bgr.shape, cfg) or \
-                    not _passes(image_bgr, out[:5], cfg, K, hyp.seen_ends):
+                    not _passes(image_bgr, out[:5], cfg, K, hyp.seen_ends) or \
+                    not _covered(image_bgr, out[0][3], out[3], cfg):
                 continue
             support = float(out[1].mean())
             vs = np.array([support] * 3 + [0.5 * support * float(hyp.seen_frac.min())])
             if best is None or support > best[0]:
-                best = (float(vs.mean()), out[0], out[5], vs)
-        if best is not None and all(np.abs(best[1] - f[1]).max() > 4.0 for f in found):
-            found.append(best)
+                best = (support, (float(vs.mean()), out[0], out[5], vs))
+        if best is not None and all(np.abs(best[1][1] - f[1]).max() > 4.0 for f in found):
+            found.append(best[1])
+
+
+def _guess_K(focal_frac: float, shape: tuple[int, ...]) -> Array:
+    """Return intrinsics from a focal length guess (``focal_frac`` of the larger side)."""
+    h, w = shape[:2]
+    f = focal_frac * max(h, w)
+    return np.array([[f, 0.0, (w - 1) / 2.0], [0.0, f, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
+
+
+def _covered(image_bgr: npt.NDArray[np.uint8], corner: Array, inside: Array,
+             cfg: SheetConfig) -> bool:
+    """Return True when something other than the sheet's colour lies on the hidden corner."""
+    h, w = image_bgr.shape[:2]
+    u, v = int(round(corner[0])), int(round(corner[1]))
+    patch = image_bgr[max(v - 2, 0):min(v + 3, h), max(u - 2, 0):min(u + 3, w)].reshape(-1, 3)
+    if not len(patch):
+        return False
+    ref = np.median(inside, axis=0)
+    return bool(np.linalg.norm(np.median(patch, axis=0) - ref) >= cfg.min_contrast)
 
 
 def _big_enough(outline: Array, shape: tuple[int, ...], cfg: SheetConfig) -> bool:

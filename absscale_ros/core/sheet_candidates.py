@@ -24,6 +24,7 @@ ROUGH_AREA_SLACK = 0.7  # rough regions may be this much smaller than the area t
 FREE_MASK = 3  # index of the edge-free regions in ``masks``
 SAT_SLACK = 0.1  # the region's mean colour may be this much more saturated than its sides'
 RING_PX = (3, 7)  # the ring around a region for its contrast, work px (past a blurred edge)
+RING_STEP = 3  # every third ring pixel is enough for its median
 RING_CONTRAST = 2.0  # of ``min_contrast``; sheets in the simulator show 4x or more
 PENT_MIN_SOLIDITY = 0.75  # a region with a corner cut off by an occluder's notch is less convex
 FREE_INSET_PX = 2.0  # a 3x3-dilated Canny line keeps edge-free regions this far inside
@@ -83,7 +84,8 @@ def candidates(work_bgr: npt.NDArray[np.uint8], cfg: 'SheetConfig'
                ) -> tuple[list[Array], list[Region]]:
     """
     Return rough (4, 2) quadrilaterals, work-image px, from the candidate masks, and every
-    large unsaturated region (for ``pentagons``: only needed when no quadrilateral passes).
+    large ``plausible`` region, whitest first (for the hidden-corner paths: only needed when
+    no quadrilateral passes).
     """
     work_white = whiteness(work_bgr)
     # Opening and the contour through boundary pixel centres shrink a small region by a pixel
@@ -91,8 +93,8 @@ def candidates(work_bgr: npt.NDArray[np.uint8], cfg: 'SheetConfig'
     min_area = ROUGH_AREA_SLACK * cfg.min_area_frac * work_white.shape[0] * work_white.shape[1]
     kernel = np.ones((3, 3), np.uint8)
     quads: list[Array] = []
-    seen: list[Array] = []
     regions: list[Region] = []
+    whites: list[float] = []
     for i, mask in enumerate(masks(work_bgr, work_white, cfg)):
         # Closing heals thin dark lines across the sheet (text, a cable); the paper's 3x3
         # opening, twice, then drops thin bridges to neighbouring objects.
@@ -105,37 +107,37 @@ def candidates(work_bgr: npt.NDArray[np.uint8], cfg: 'SheetConfig'
             solidity = region_shape(c, min_area, cfg)
             if solidity < PENT_MIN_SOLIDITY:
                 continue  # too small, too round or too long, or far from convex
+            white = plausible(work_bgr, c, cfg)
+            if white is None:
+                continue
             regions.append((c, grow))
+            whites.append(white)
             quad = lines.rough_quad(c) if solidity >= cfg.min_solidity else None
             quad = None if quad is None else offset(quad, grow)
             if quad is None or touches_border(quad, work_white.shape):
                 continue  # a sheet cut by the image border has no trustworthy corners
-            if all(np.abs(quad - q).max() > 2.0 for q in seen):
-                seen.append(quad)  # another mask's outline of it is not tested again
-                if plausible(work_bgr, c, cfg):
-                    quads.append(quad)
-    return quads, regions
+            if all(np.abs(quad - q).max() > 2.0 for q in quads):
+                quads.append(quad)  # another mask's outline of it is not tested again
+    order = np.argsort(-np.array(whites), kind='stable')
+    return quads, [regions[i] for i in order]  # whitest first: where a sheet is likeliest
 
 
-def pentagons(work_bgr: npt.NDArray[np.uint8], regions: list[Region], cfg: 'SheetConfig'
-              ) -> list[Array]:
+def pentagons(regions: list[Region]) -> list[Array]:
     """Return the distinct (5, 2) pentagons (a sheet with a corner cut off) of ``regions``."""
     pents: list[Array] = []
-    seen: list[Array] = []
     for contour, grow in regions:
         pent = sheet_partial.pentagon(contour)
         pent = None if pent is None else offset(pent, grow)
-        if pent is not None and all(np.abs(pent - q).max() > 2.0 for q in seen):
-            seen.append(pent)
-            if plausible(work_bgr, contour, cfg):
-                pents.append(pent)
+        if pent is not None and all(np.abs(pent - q).max() > 2.0 for q in pents):
+            pents.append(pent)
     return pents
 
 
 def plausible(work_bgr: npt.NDArray[np.uint8], contour: npt.NDArray[np.int32],
-              cfg: 'SheetConfig') -> bool:
+              cfg: 'SheetConfig') -> float | None:
     """
-    Return True when a region's mean colour is unsaturated enough and differs from the ring
+    Return a region's whiteness (smallest channel of its mean colour) when that colour is
+    unsaturated enough and differs from the ring
     just around it: cheap work-image versions of the detector's one-colour and contrast tests,
     so wood, coloured objects and floor tiles (the same colour beyond the grout) go before
     the full-resolution refinement.
@@ -146,14 +148,19 @@ def plausible(work_bgr: npt.NDArray[np.uint8], contour: npt.NDArray[np.int32],
     x1, y1 = min(x + w + m, work_bgr.shape[1]), min(y + h + m, work_bgr.shape[0])
     inside = np.zeros((y1 - y0, x1 - x0), np.uint8)
     cv2.drawContours(inside, [contour - np.array([x0, y0], np.int32)], 0, 1, -1)
-    near = cv2.dilate(inside, _disc(RING_PX[0]))
-    far = cv2.dilate(inside, _disc(m))
+    near = cv2.dilate(inside, _square(RING_PX[0]))
+    far = cv2.dilate(inside, _square(m))
     roi = work_bgr[y0:y1, x0:x1]
     mean_in = np.array(cv2.mean(roi, inside)[:3])
     if mean_in.max() - mean_in.min() > (cfg.max_saturation + SAT_SLACK) * max(mean_in.max(), 1.0):
-        return False
-    ring = np.median(roi[(far > near)], axis=0)  # the median skips a grout line in the ring
-    return bool(np.linalg.norm(mean_in - ring) >= RING_CONTRAST * cfg.min_contrast)
+        return None
+    ring_px = roi[far > near][::RING_STEP]
+    if not len(ring_px):
+        return None  # nothing around it in the image: no surface it lies on
+    ring = np.median(ring_px, axis=0)  # the median skips a grout line in the ring
+    if np.linalg.norm(mean_in - ring) < RING_CONTRAST * cfg.min_contrast:
+        return None
+    return float(mean_in.min())
 
 
 def offset(poly: Array, dist_px: float) -> Array | None:
@@ -188,5 +195,5 @@ def region_shape(contour: npt.NDArray[np.int32], min_area: float, cfg: 'SheetCon
     return area / max(cv2.contourArea(cv2.convexHull(contour)), 1e-9)
 
 
-def _disc(radius: int) -> npt.NDArray[np.uint8]:
-    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+def _square(radius: int) -> npt.NDArray[np.uint8]:
+    return np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)  # separable: fast

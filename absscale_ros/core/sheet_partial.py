@@ -30,11 +30,13 @@ class Partial:
     :param corners: (4, 2) px, corners 0..2 seen, 3 extrapolated (cyclic order).
     :param seen_ends: (4, 2, 2) px, the seen part of each side ``i`` (corner ``i`` to ``i+1``).
     :param seen_frac: (2,) seen fraction of the two sides at the hidden corner (sides 2, 3).
+    :param outline: (M, 2) px, the seen region's outline, when the hypothesis needs it.
     """
 
     corners: Array
     seen_ends: Array
     seen_frac: Array
+    outline: Array | None = None
 
 
 def pentagon(contour: npt.NDArray[np.int32]) -> Array | None:

@@ -114,9 +114,36 @@ def test_sheet_with_one_hidden_corner_extrapolated_and_marked(box):
     seen_poly = d.polygons[0][1]  # the outline reported is the seen part only
     assert cv2.pointPolygonTest(seen_poly.astype(np.float32),
                                 tuple(float(x) for x in true_px[hidden[0]]), False) < 0
-    # Switched off, the sheet is not reported at all.
-    off = detect_sheet.SheetConfig(sheet='a4', min_seen=1.0)
+    # Switched off (both hidden-corner paths), the sheet is not reported at all.
+    off = detect_sheet.SheetConfig(sheet='a4', min_seen=1.0, stub_px=0.0)
     assert detect_sheet.detect_sheets(img, off) == []
+
+
+@pytest.mark.parametrize('rvec,hidden', [((0.5, -0.2, 0.3), 2), ((-0.4, 0.3, -0.6), 1)])
+def test_sheet_with_corner_and_nearly_all_of_one_side_hidden(rvec, hidden):
+    """A box covers one corner and all but 15 px of one side next to it: the three seen
+    corners come from the sides' edges, the hidden one from the intrinsics (``sheet_stub``)."""
+    true_px = st.project_sheet(rvec, (0.0, 0.0, 0.9))
+    prev, corner, nxt = (true_px[(hidden + d) % 4] for d in (-1, 0, 1))
+    stub = prev + 15.0 * (corner - prev) / np.hypot(*(corner - prev))  # all of that side seen
+    part = nxt + 0.45 * (corner - nxt)  # a good part of the other one seen
+    out = corner - true_px.mean(axis=0)
+    box = [stub, stub + out, corner + out, part + out, part]
+
+    def extra(img):
+        st.fill(img, box, (40, 70, 120))
+    img = st.render_sheet(_rng(13), true_px, extra=extra)
+    dets = detect_sheet.detect_sheets(img, detect_sheet.SheetConfig(sheet='a4'), st.K)
+    assert len(dets) == 1
+    err, rel = _sheet_errors(dets[0], true_px)
+    assert np.delete(err, hidden).max() < 1.0  # seen corners as exact as a whole sheet's
+    assert rel[hidden] < 0.02
+    d = dets[0]
+    far = int(np.argmin(np.hypot(*(d.vertices_px - true_px[hidden]).T)))
+    assert d.scores()[far] <= 0.5 < np.delete(d.scores(), far).min()
+    # The pentagon rule alone cannot: one side at the hidden corner is seen over 15 px only.
+    off = detect_sheet.SheetConfig(sheet='a4', stub_px=0.0)
+    assert detect_sheet.detect_sheets(img, off, st.K) == []
 
 
 def test_floor_tile_between_grout_lines_is_not_a_sheet():
