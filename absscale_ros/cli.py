@@ -27,6 +27,7 @@ COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ('bench', 'detect'): ('absscale_ros.tools.bench_detect', 'detection accuracy against gt.json'),
     ('bench', 'sfm'): ('absscale_ros.tools.bench_sfm', 'SfM against gt.json and pycolmap'),
     ('bench', 'keyframes'): ('absscale_ros.tools.bench_keyframes', 'keyframes against gt.json'),
+    ('bench', 'dense'): ('absscale_ros.tools.bench_dense', 'dense cloud against gt.json'),
 }
 
 

@@ -5,10 +5,11 @@ Each keyframe gets one depth map (``dense_stereo``) from the best partner among 
 neighbours. A depth pixel survives when the depth maps of at least ``min_consistent`` other
 keyframes see the same surface within ``consistency_rel`` of its depth (multi-view
 consistency: stereo mistakes rarely repeat in another pair). The survivors of each keyframe are
-voxel-downsampled, cleared of statistical outliers and given normals once, and cached; the
-cloud is the voxel average of those caches. A new keyframe costs one stereo pair and the
-re-check of its neighbours; an old depth map is recomputed only when the pose of its pair
-moved materially (a scale change alone just scales it).
+voxel-downsampled, cleared of statistical outliers and given normals once, and cached in the
+keyframe's camera frame; the cloud is the voxel average of those caches placed by the latest
+poses. A new keyframe costs its depth maps and the check of its own points; an old keyframe's
+cache is rebuilt only when one of its depth maps is recomputed because its pair moved
+materially, rescaled when only the scale changed, and otherwise just moved with its pose.
 """
 from dataclasses import dataclass, field
 from typing import Any
@@ -20,6 +21,7 @@ from absscale_ros.core import dense_cloud, dense_stereo
 from absscale_ros.core.types import CameraModel
 
 FloatArray = npt.NDArray[np.float64]
+_NEW = -1.0  # a depth map was (re)computed, as opposed to a rescale factor
 
 
 @dataclass(frozen=True)
@@ -75,39 +77,36 @@ class DenseFusion:
         :returns: whether the cloud changed.
         """
         stamps = [s for s in sorted(self._frames) if s in poses]
-        for s in self._frames:
-            if s not in poses:
-                self._frames[s].cloud = None  # dropped from the map: keep, but out of the cloud
+        moved = stamps != getattr(self, '_stamps', [])
         for s in stamps:
             kf = self._frames[s]
             old, kf.pose = kf.pose, np.asarray(poses[s], np.float64)
-            if old is None or not np.allclose(old, kf.pose, atol=1e-9):
+            moved |= old is None or not np.allclose(old, kf.pose, atol=1e-9)
+        # Clouds live in their keyframe's camera frame: a pose that moves only moves them.
+        outcome = [self._refresh_depth(stamps, i) for i in range(len(stamps))]
+        for i, s in enumerate(stamps):
+            kf = self._frames[s]
+            if not kf.depths:
                 kf.cloud = None
-        changed = {i for i in range(len(stamps)) if self._refresh_depth(stamps, i)}
-        for i in self._near(changed, len(stamps)):
-            self._frames[stamps[i]].cloud = None
-        rebuilt = [s for s in stamps if self._frames[s].depths and self._frames[s].cloud is None]
-        for s in rebuilt:
-            self._frames[s].cloud = self._keyframe_cloud(stamps, stamps.index(s))
+            elif outcome[i] == _NEW or kf.cloud is None:
+                kf.cloud = self._keyframe_cloud(stamps, i)
+            elif outcome[i] != 1.0:
+                kf.cloud.scale(outcome[i], np.zeros(3))  # a new scale: depth x baseline ratio
         self._stamps = stamps
-        return bool(rebuilt)
+        return moved or any(o != 1.0 for o in outcome)
 
-    def _near(self, indices: set[int], n: int) -> set[int]:
-        k = self.cfg.neighbours
-        return {j for i in indices for j in range(max(0, i - k), min(n, i + k + 1))}
-
-    def _refresh_depth(self, stamps: list[int], i: int) -> bool:
+    def _refresh_depth(self, stamps: list[int], i: int) -> float:
         """
-        Bring keyframe ``i``'s depth maps (a partner on each side, or one) up to date; return
-        whether one changed. Both sides average out SGBM's sub-pixel bias, whose sign follows
-        the direction of the baseline in the image (measured: about +-0.3 % of depth).
+        Bring keyframe ``i``'s depth maps (a partner on each side, or one) up to date: return
+        ``_NEW`` if one was computed, else the factor its depths were rescaled by (1.0: none).
+        Both sides average out SGBM's sub-pixel bias, whose sign follows the direction of the
+        baseline in the image (measured: about +-0.3 % of depth).
         """
-        changed = False
-        for side in (1, -1) if self.cfg.both_sides else (0,):
-            changed |= self._refresh_side(stamps, i, side)
-        return changed
+        results = [r for side in ((1, -1) if self.cfg.both_sides else (0,))
+                   if (r := self._refresh_side(stamps, i, side)) is not None]
+        return _NEW if _NEW in results else float(np.mean(results)) if results else 1.0
 
-    def _refresh_side(self, stamps: list[int], i: int, side: int) -> bool:
+    def _refresh_side(self, stamps: list[int], i: int, side: int) -> float | None:
         kf = self._frames[stamps[i]]
         old = kf.depths.get(side)
         if old is not None and old.pair_stamp in self._frames:
@@ -118,10 +117,10 @@ class DenseFusion:
                         and _angle_deg(T[:3, 3], old.relative[:3, 3]) < self.cfg.recompute_deg:
                     ratio = np.linalg.norm(T[:3, 3]) / np.linalg.norm(old.relative[:3, 3])
                     if abs(ratio - 1.0) < 1e-9:
-                        return False
+                        return 1.0
                     old.depth *= np.float32(ratio)  # a new scale only: depth goes with baseline
                     old.relative = T
-                    return True
+                    return float(ratio)
         depth_guess = self._depth_guess(stamps, i)
         n = self.stereo.candidates
         scored = []
@@ -132,15 +131,15 @@ class DenseFusion:
                 q = dense_stereo.pair_quality(kf.pose, other, depth_guess, self.stereo)
                 if q is not None:
                     scored.append((q, j))
-        if not scored:
-            return kf.depths.pop(side, None) is not None
+        if not scored:  # no partner on this side (any more)
+            return _NEW if kf.depths.pop(side, None) is not None else None
         j = min(scored)[1]
         partner = self._frames[stamps[j]]
         kf.depths[side] = dense_stereo.compute_depth(kf.image, partner.image, kf.camera,
                                                      kf.pose, partner.pose, stamps[j],
                                                      self.stereo)
         self.depth_computed += 1
-        return True
+        return _NEW
 
     def _depth_guess(self, stamps: list[int], i: int) -> float:
         """Median depth of the nearest keyframe that has a depth map (for the pair choice)."""
@@ -160,8 +159,8 @@ class DenseFusion:
         """The consistent points of keyframe ``i``, cleaned, with normals, in its camera frame."""
         kf = self._frames[stamps[i]]
         k = self.cfg.neighbours
-        maps = [(m, self._frames[stamps[j]].pose, j)
-                for j in range(max(0, i - k), min(len(stamps), i + k + 1))
+        near = sorted(range(max(0, i - k), min(len(stamps), i + k + 1)), key=lambda j: abs(j - i))
+        maps = [(m, self._frames[stamps[j]].pose, j) for j in near
                 for m in self._frames[stamps[j]].depths.values()]
         keep_pts, keep_col = [], []
         for own in kf.depths.values():
@@ -169,8 +168,9 @@ class DenseFusion:
             world = pts @ kf.pose[:3, :3].T + kf.pose[:3, 3]
             votes = np.zeros(len(pts), np.int32)
             for m, pose, _ in maps:  # the keyframe's other side is an independent pair too
-                if m is not own:
-                    votes += agrees(world, pose, m, self.cfg.consistency_rel)
+                todo = np.flatnonzero(votes < self.cfg.min_consistent)
+                if m is not own and len(todo):
+                    votes[todo] += agrees(world[todo], pose, m, self.cfg.consistency_rel)
             keep = votes >= self.cfg.min_consistent
             keep_pts.append(pts[keep])
             keep_col.append(colours[keep])
