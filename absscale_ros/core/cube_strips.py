@@ -55,22 +55,26 @@ def _half_step(bgr: Array, w: Array, offs: Array) -> Array:
 
     :param bgr: (P, K, 3) samples along the profiles; ``w`` (P,) widths from the colour test.
     """
+    wf = np.where(np.isfinite(w), w, -10.0)[:, None]
+    inner = (offs > 0.5) & (offs < wf - 1.5)  # (P, K)
+    outer = (offs > wf + 1.5) & (offs < wf + 3.5)
+    ok = np.isfinite(w) & inner.any(axis=1) & outer.any(axis=1)
+    if not ok.any():
+        return w
+    p = np.flatnonzero(ok)
+    samples = bgr[p]
+    strip = np.nanmedian(np.where(inner[p, :, None], samples, np.nan), axis=1)  # (P', 3)
+    beyond = np.nanmedian(np.where(outer[p, :, None], samples, np.nan), axis=1)
+    d = strip - beyond
+    t = np.einsum('pkc,pc->pk', samples - beyond[:, None], d) / np.maximum(
+        (d * d).sum(axis=1), 1e-9)[:, None]  # 1 on the strip, 0 beyond
+    below = ((offs > wf[p] - 2.0) & (offs < wf[p] + 2.0)) & (t < 0.5)
+    k = np.argmax(below, axis=1)  # first sample past half way, and the one before it
+    crossed = below.any(axis=1) & (k > 0)
+    p, k, t = p[crossed], k[crossed], t[crossed]
+    t0, t1 = t[np.arange(len(k)), k - 1], t[np.arange(len(k)), k]
     out = w.copy()
-    for p in np.flatnonzero(np.isfinite(w)):
-        inner = bgr[p, (offs > 0.5) & (offs < w[p] - 1.5)]
-        outer = bgr[p, (offs > w[p] + 1.5) & (offs < w[p] + 3.5)]
-        if len(inner) == 0 or len(outer) == 0:
-            continue
-        strip, beyond = np.median(inner, axis=0), np.median(outer, axis=0)
-        d = strip - beyond
-        t = (bgr[p] - beyond) @ d / max(float(d @ d), 1e-9)  # 1 on the strip, 0 beyond
-        near = np.flatnonzero((offs > w[p] - 2.0) & (offs < w[p] + 2.0))
-        below = near[t[near] < 0.5]
-        if len(below) == 0 or below[0] == 0:
-            continue
-        k = below[0]  # first sample past half way, and the one before it
-        frac = (t[k - 1] - 0.5) / max(t[k - 1] - t[k], 1e-9)
-        out[p] = offs[k - 1] + frac * STEP_PX
+    out[p] = offs[k - 1] + (t0 - 0.5) / np.maximum(t0 - t1, 1e-9) * STEP_PX
     return out
 
 
@@ -91,41 +95,51 @@ def strip_faces(image_bgr: npt.NDArray[np.uint8], corners: list[Array], colours:
         colour just behind the cube runs some profiles on past ``max_width`` (the shape check
         then decides whether the strip agrees with the cube).
     """
-    out = []
-    for f, (cs, colour) in enumerate(zip(corners, colours)):
+    # Every unshared side of every face, sampled in one remap and one colour test.
+    ts = 0.15 + 0.7 * (np.arange(PROFILES) + 0.5) / PROFILES
+    offs = np.arange(0.5, max_width + 1e-9, STEP_PX)
+    cand = []  # (face, side, c0, c1, outward normal, offsets within half the side)
+    for f, cs in enumerate(corners):
         centre = cs.mean(axis=0)
-        found: list[tuple[int, str, Array, float, bool]] = []
         for i in range(4):
             c0, c1 = cs[i], cs[(i + 1) % 4]
             length = float(np.hypot(*(c1 - c0)))
             if length < 8.0 or _shared(corners, f, i, max(3.0, 0.1 * length)):
                 continue
-            n = lines.line_through(c0, c1, centre)[:2]  # outward
-            ts = 0.15 + 0.7 * (np.arange(PROFILES) + 0.5) / PROFILES
-            offs = np.arange(0.5, min(max_width, 0.5 * length) + 1e-9, STEP_PX)
-            xy = (c0 + ts[:, None] * (c1 - c0))[:, None, :] + offs[None, :, None] * n
-            bgr = cv2.remap(image_bgr, xy[..., 0].astype(np.float32),
-                            xy[..., 1].astype(np.float32), cv2.INTER_LINEAR)
-            for other, inside in masks_of(bgr).items():
-                if other == colour:
-                    continue
-                w = _widths(inside, offs)
-                ok = np.isfinite(w) & (w >= min_width)
-                if ok.mean() < min_frac:
-                    continue
-                w = _half_step(bgr.astype(np.float64), w, offs)
-                slope, icpt = np.polyfit(ts[ok], w[ok], 1)
-                w0, w1 = icpt, icpt + slope
-                if min(w0, w1) < 0.5 * min_width:
-                    continue
-                strip = np.array([c0, c0 + w0 * n, c1 + w1 * n, c1])
-                runs_on = _runs_on(image_bgr, strip, other, masks_of)
-                found.append((i, other, strip, float(ok.mean()), runs_on))
+            k = int(np.searchsorted(offs, min(max_width, 0.5 * length) + 1e-9))
+            cand.append((f, i, c0, c1, lines.line_through(c0, c1, centre)[:2], k))
+    if not cand:
+        return []
+    xy = np.stack([(c0 + ts[:, None] * (c1 - c0))[:, None, :] + offs[None, :, None] * n
+                   for _, _, c0, c1, n, _ in cand]).reshape(-1, len(offs), 2)
+    flat = cv2.remap(image_bgr, xy[..., 0].astype(np.float32), xy[..., 1].astype(np.float32),
+                     cv2.INTER_LINEAR)
+    samples = flat.reshape(len(cand), PROFILES, len(offs), 3)
+    masks = {c: m.reshape(len(cand), PROFILES, len(offs)) for c, m in masks_of(flat).items()}
+    found: dict[int, list[tuple[int, str, Array, float, bool]]] = {}
+    for s_, (f, i, c0, c1, n, k) in enumerate(cand):
+        for other, inside in masks.items():
+            if other == colours[f]:
+                continue
+            w = _widths(inside[s_, :, :k], offs[:k])
+            ok = np.isfinite(w) & (w >= min_width)
+            if ok.mean() < min_frac:
+                continue
+            w = _half_step(samples[s_, :, :k].astype(np.float64), w, offs[:k])
+            slope, icpt = np.polyfit(ts[ok], w[ok], 1)
+            w0, w1 = icpt, icpt + slope
+            if min(w0, w1) < 0.5 * min_width:
+                continue
+            strip = np.array([c0, c0 + w0 * n, c1 + w1 * n, c1])
+            runs_on = _runs_on(image_bgr, strip, other, masks_of)
+            found.setdefault(f, []).append((i, other, strip, float(ok.mean()), runs_on))
+    out = []
+    for face_found in found.values():
         # Faces next to one face differ in colour: one colour on two neighbouring sides is a
         # box behind, not the cube.
-        behind = {c for i, c, *_ in found for j, d, *_ in found
+        behind = {c for i, c, *_ in face_found for j, d, *_ in face_found
                   if c == d and (j - i) % 4 in (1, 3)}
-        out += [(c, strip, sup, on) for _, c, strip, sup, on in found if c not in behind]
+        out += [(c, strip, sup, on) for _, c, strip, sup, on in face_found if c not in behind]
     return out
 
 
