@@ -25,6 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--sample-step', type=int, default=24,
                         help='surface samples every this many pixels of each keyframe')
     parser.add_argument('--ply', default=None, help='write the dense cloud of the last bag here')
+    parser.add_argument('--png', default=None, help='picture of the last bag\'s dense cloud')
     parser.add_argument('--json', action='store_true', help='one JSON object per bag')
 
 
@@ -33,7 +34,7 @@ def run(args: argparse.Namespace) -> int:
     print(f'targets: {TARGETS}')
     for bag in args.bags:
         result = dense_truth.evaluate_bag(bag, args.config, args.gt_poses, args.sample_step,
-                                          args.ply)
+                                          args.ply, args.png)
         print(json.dumps(result) if args.json else _line(result), flush=True)
     return 0
 

@@ -124,7 +124,7 @@ def surface_samples(gt: dict[str, Any], frames: list[int], step: int,
 
 
 def evaluate_bag(bag: str, config: str | None, gt_poses: bool, sample_step: int,
-                 ply: str | None) -> dict[str, Any]:
+                 ply: str | None, png: str | None = None) -> dict[str, Any]:
     """Every figure of ``absscale bench dense`` for one bag."""
     from absscale_ros.core import cloud, dense_evaluation
     from absscale_ros.sim import groundtruth
@@ -141,11 +141,15 @@ def evaluate_bag(bag: str, config: str | None, gt_poses: bool, sample_step: int,
     est = np.array([run['poses'][s][:3, 3] for s in run['stamps']])
     true = np.array([np.array(gt['frames'][i]['T_world_cam'])[:3, 3] for i in frames])
     R, t = dense_evaluation.rigid_alignment(est, true)
-    xyz, rgb, _ = run['cloud']
+    xyz, rgb, normals = run['cloud']
     aligned = xyz @ R.T + t
     if ply:
-        cloud.write_ply(Path(ply), aligned, rgb)
-        np.save(Path(ply).with_suffix('.normals.npy'), run['cloud'][2] @ R.T)
+        cloud.write_ply(Path(ply), aligned, rgb, normals @ R.T)
+    if png:
+        from absscale_ros import dense_figure
+        dense_figure.draw(Path(png), aligned, rgb, normals @ R.T,
+                          [np.array(gt['frames'][i]['T_world_cam']) for i in frames],
+                          f'{Path(bag).name}: {len(xyz)} dense points, {result["mode"]}')
     renderer = groundtruth.renderer_for(gt)
     mesh = dense_evaluation.SceneMesh(renderer.scene.vertices_m, renderer.scene.triangles)
     samples, depths = surface_samples(gt, frames, sample_step, mesh)
