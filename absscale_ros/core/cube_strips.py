@@ -63,8 +63,9 @@ def _half_step(bgr: Array, w: Array, offs: Array) -> Array:
         return w
     p = np.flatnonzero(ok)
     samples = bgr[p]
-    strip = np.nanmedian(np.where(inner[p, :, None], samples, np.nan), axis=1)  # (P', 3)
-    beyond = np.nanmedian(np.where(outer[p, :, None], samples, np.nan), axis=1)
+    inn, out_ = inner[p, :, None], outer[p, :, None]  # means: a few samples, all one colour
+    strip = (samples * inn).sum(axis=1) / inn.sum(axis=1)  # (P', 3)
+    beyond = (samples * out_).sum(axis=1) / out_.sum(axis=1)
     d = strip - beyond
     t = np.einsum('pkc,pc->pk', samples - beyond[:, None], d) / np.maximum(
         (d * d).sum(axis=1), 1e-9)[:, None]  # 1 on the strip, 0 beyond
