@@ -22,6 +22,7 @@ from absscale_ros.core import (lines, quads, sheet_candidates, sheet_partial, sh
                                targets)
 
 Array = npt.NDArray[np.float64]
+FIRST_PASS_SUPPORT = 0.25  # a side less supported after the widest refinement pass: no sheet
 STUB_MAX_HYPS = 8  # stub hypotheses refined per frame at most (deepest occluder cut first)
 
 
@@ -132,8 +133,11 @@ def refine_quad(image_bgr: npt.NDArray[np.uint8], quad_px: Array, coarse_band_px
     ends = np.stack([quad_px, np.roll(quad_px, -1, axis=0)], axis=1)
     rough = np.array([lines.line_through(p0, p1, centre) for p0, p1 in ends])
     n = int(np.clip(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1).mean() / 4.0, 16, 64))
-    refined, supports, steps, inside, outside = sides.refine(
-        image_bgr, rough, ends, (coarse_band_px, 4.0, 3.0), n)
+    out = sides.refine_checked(image_bgr, rough, ends, (coarse_band_px, 4.0, 3.0), n,
+                               FIRST_PASS_SUPPORT)
+    if out is None:
+        return None
+    refined, supports, steps, inside, outside = out
     corners = lines.quad_corners(list(refined))
     if corners is None or not cv2.isContourConvex(corners.astype(np.float32)):
         return None
@@ -233,8 +237,9 @@ def _accept_partial(image_bgr: npt.NDArray[np.uint8], groups: list[list[sheet_pa
                     rough_aspect: bool = True) -> None:
     """
     Try every hidden-corner hypothesis of each group (one seen region); keep the best
-    supported per group. ``rough_aspect``: test the aspect of the rough corners first (not
-    for stubs, whose rough hidden corner comes from short rough sides).
+    supported per group. ``rough_aspect``: test the aspect of the rough corners and the
+    floor-tile rule before refining (not for stubs, whose rough hidden corner comes from short
+    rough sides; ``_passes`` applies both to the refined corners anyway).
 
     The extrapolated corner scores half the sheet's support times the smaller seen fraction of
     its two sides; the sheet's score is the mean over its corners.
@@ -247,8 +252,8 @@ def _accept_partial(image_bgr: npt.NDArray[np.uint8], groups: list[list[sheet_pa
             if rough_aspect and \
                     not _aspect_ok(hyp.corners, image_bgr.shape, cfg, K, cfg.rough_aspect_tol):
                 continue  # rough corners: a looser test here, the exact one after refinement
-            if _tile(image_bgr, hyp.corners, cfg, hyp.seen_ends):
-                continue
+            if rough_aspect and _tile(image_bgr, hyp.corners, cfg, hyp.seen_ends):
+                continue  # (a stub's refinement gives up early, cheaper than this test)
             out = refine(hyp)
             if out is None or not _big_enough(out[5], image_bgr.shape, cfg) or \
                     not _passes(image_bgr, out[:5], cfg, K, hyp.seen_ends) or \

@@ -25,6 +25,7 @@ STUB_AGREE = 0.05  # largest distance of the stub's corner from the predicted on
 STUB_MIN_SUPPORT = 0.99  # every profile of the stub must find its edge on the fitted line
 OCCLUDER_DEPTH = 0.1  # of the shorter hidden side: how far inside an occluder's edge must cut
 SHORT_EDGE = 0.25  # polygon edges shorter than this fraction of a side are a blunted corner
+FIRST_PASS_SUPPORT = 0.25  # a seen side less supported after the widest pass: not a sheet
 
 
 def _cross(a: Array, b: Array) -> Array:
@@ -233,8 +234,11 @@ def refine(image_bgr: npt.NDArray[np.uint8], hyp: sheet_partial.Partial, band_px
     rough = np.array([lines.line_through(a, b, centre) for a, b in hyp.seen_ends])
     seen_len = np.linalg.norm(hyp.seen_ends[:, 1] - hyp.seen_ends[:, 0], axis=1)
     n = int(np.clip(seen_len.mean() / 4.0, 16, 64))
-    ls, supports, steps, inside, outside = sides.refine(
-        image_bgr, rough, hyp.seen_ends, (band_px, 4.0, 3.0), n)
+    out = sides.refine_checked(image_bgr, rough, hyp.seen_ends, (band_px, 4.0, 3.0), n,
+                               FIRST_PASS_SUPPORT, np.array([0, 1, 3]))
+    if out is None:
+        return None
+    ls, supports, steps, inside, outside = out
     seen = [lines.intersect(ls[a], ls[b]) for a, b in ((3, 0), (0, 1), (1, 2))]
     if any(c is None for c in seen):
         return None

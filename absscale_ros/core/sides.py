@@ -107,7 +107,8 @@ def fit_lines(pts: Array, weights: Array, outward: Array, scale_px: Array,
 
 
 def refine(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
-           bands_px: tuple[float, ...], n: int, min_rel_strength: float = 0.3
+           bands_px: tuple[float, ...], n: int, min_rel_strength: float = 0.3,
+           colours: tuple[Array, Array] | None = None
            ) -> tuple[Array, Array, Array, Array, Array]:
     """
     Refine S sides on the full-resolution image, coarse band to fine band.
@@ -117,6 +118,8 @@ def refine(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
     :param bands_px: half-widths of the search band, one pass each (the colour step of each
         side is measured in the first, widest one).
     :param n: profiles per side.
+    :param colours: (S, 3) inside and outside colours measured before (by an earlier pass),
+        instead of measuring them in the first band.
     :returns: ((S, 3) refined lines, (S,) support: fraction of profiles whose edge is at least
         ``min_rel_strength`` of the side's median strength and within 1 px (or 0.5% of the
         side) of the refined line, (S,) colour step norm across each side, 0-255 units,
@@ -130,7 +133,7 @@ def refine(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
     for i, band in enumerate(bands_px):
         centres, offs, samples = _profiles(image_bgr, lines_, ends, band, n)
         if i == 0:
-            inside, outside = side_colours(samples)
+            inside, outside = side_colours(samples) if colours is None else colours
             step = inside - outside
         pts, strength = _edges(samples, step, centres, offs, lines_[:, :2])
         med = np.median(np.where(strength > 0, strength, np.nan), axis=1)
@@ -173,3 +176,21 @@ def ridge_ratio(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array, ba
         out = np.maximum(out, np.linalg.norm(far - extreme, axis=1)
                          / np.maximum(np.linalg.norm(inside - extreme, axis=1), 1.0))
     return out
+
+
+def refine_checked(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
+                   bands_px: tuple[float, ...], n: int, min_first_support: float,
+                   checked: npt.NDArray[np.intp] | None = None
+                   ) -> tuple[Array, Array, Array, Array, Array] | None:
+    """
+    ``refine``, but give up after the first (widest) pass when a side in ``checked`` (default
+    all) is supported less than ``min_first_support``: most candidates are not the object,
+    and the finer passes cost twice the first.
+    """
+    first = refine(image_bgr, lines_, ends, bands_px[:1], n)
+    support = first[1] if checked is None else first[1][checked]
+    if support.min() < min_first_support:
+        return None
+    if len(bands_px) == 1:
+        return first
+    return refine(image_bgr, first[0], ends, bands_px[1:], n, colours=(first[3], first[4]))

@@ -125,7 +125,7 @@ def test_sheet_with_corner_and_nearly_all_of_one_side_hidden(rvec, hidden):
     corners come from the sides' edges, the hidden one from the intrinsics (``sheet_stub``)."""
     true_px = st.project_sheet(rvec, (0.0, 0.0, 0.9))
     prev, corner, nxt = (true_px[(hidden + d) % 4] for d in (-1, 0, 1))
-    stub = prev + 15.0 * (corner - prev) / np.hypot(*(corner - prev))  # all of that side seen
+    stub = prev + 15.0 * (corner - prev) / np.hypot(*(corner - prev))  # 15 px of that side
     part = nxt + 0.45 * (corner - nxt)  # a good part of the other one seen
     out = corner - true_px.mean(axis=0)
     box = [stub, stub + out, corner + out, part + out, part]
