@@ -81,6 +81,11 @@ class SegmentGraph:
         self._gauge_done = free_from >= 0  # held keyframes fix the gauge
         self._all_pending = True  # next _new_terms looks at every landmark, not just dirty ones
 
+    @property
+    def held_before(self) -> int:
+        """Keyframes with ids below this one are held fixed in iSAM2 (-1: none)."""
+        return self._free_from
+
     def batch_due(self, keyframes: int) -> bool:
         """Whether a segment of ``keyframes`` keyframes is due a full batch adjustment."""
         since = keyframes - self._last_batch_size
@@ -155,9 +160,17 @@ class SegmentGraph:
     def update(self, m: sfm_map.SfmMap, fallback: bool = True) -> None:
         """
         Add the map's new observations to iSAM2, update, write the estimate into ``m``.
+        Once ``2 * window`` keyframes are free, iSAM2 starts again from the current estimate
+        with only the newest ``window`` free (between batches, which come rarer as the map
+        grows, its cost would otherwise grow with them).
 
         :param fallback: on an ill-conditioned iSAM2 step, run ``batch`` instead of raising.
         """
+        ids = sorted(m.keyframes)
+        if fallback and len(ids) > 2 * self._cfg.window and \
+                ids[-2 * self._cfg.window] >= max(self._free_from, 0):
+            m.dirty.clear()  # the restart looks at every landmark of the free keyframes
+            self._reset(ids[-self._cfg.window])
         graph, values = self._new_terms(m)
         if graph.size() == 0:
             return
