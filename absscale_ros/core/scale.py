@@ -166,8 +166,8 @@ def zero_intercept_scale(measured: FloatArray, true_m: FloatArray) -> tuple[floa
     return factor, sigma
 
 
-def _usable(n_obs: npt.NDArray[np.int64], angles_deg: FloatArray,
-            cfg: ScaleConfig) -> npt.NDArray[np.bool_]:
+def usable(n_obs: npt.NDArray[np.int64], angles_deg: FloatArray,
+           cfg: ScaleConfig) -> npt.NDArray[np.bool_]:
     return (np.asarray(n_obs) >= cfg.min_observations) & \
         (np.asarray(angles_deg) >= cfg.min_angle_deg)
 
@@ -224,7 +224,7 @@ class ObjectVertices:
     alternatives: tuple[tuple[float, ...], ...] = ()
 
 
-def _which_model(points: FloatArray, obj: ObjectVertices, cfg: ScaleConfig) -> FloatArray:
+def which_model(points: FloatArray, obj: ObjectVertices, cfg: ScaleConfig) -> FloatArray:
     """
     The model of ``obj`` (or of one of its ``alternatives``) that the vertices fit.
 
@@ -266,14 +266,14 @@ def estimate(objects: list[ObjectVertices], cfg: ScaleConfig,
                                  f'{cfg.min_keyframes}')
     measured, true_m, rejected = [], [], []
     for obj in objects:
-        keep = _usable(obj.n_obs, obj.angles_deg, cfg)
+        keep = usable(obj.n_obs, obj.angles_deg, cfg)
         pts = np.asarray(obj.points, float)[keep]
         if len(pts) < cfg.min_vertices:
             rejected.append(f'object {obj.object_id}: {len(pts)} well-observed vertices < '
                             f'{cfg.min_vertices}')
             continue
         try:
-            model = _which_model(pts, obj, cfg)
+            model = which_model(pts, obj, cfg)
             pts, dropped = _drop_outlier_vertex(pts, model, cfg)
             m, t = object_lengths(pts, model, cfg)
         except DegenerateGeometryError as err:

@@ -1,0 +1,85 @@
+"""
+Fitted factor against known-length factors in the graph (issue #7, deliverable 2).
+
+``python test/bench/scale_in_graph.py BAG... [--config indoor_paper|outdoor_cube]``: the core
+SfM runs over the bag's keyframes (the core selector) with the detector's vertices, then the
+scale comes out two ways from the same map: ``scale.estimate`` (zero-intercept least squares over
+the target's edges and diagonals) and ``metric_ba.adjust`` (those lengths as RangeFactor3 inside
+a batch adjustment). Each is compared with the factor that best aligns the map's camera centres
+with the ground truth; errors in mm per metre.
+"""
+import argparse
+from dataclasses import fields
+import json
+import sys
+import time
+
+from absscale_ros import params
+from absscale_ros.core import errors, evaluation, metric_ba, scale, sfm, sfm_outputs, targets
+from absscale_ros.tools import bench_sfm
+import numpy as np
+
+
+def _scale_config(config: str) -> tuple[scale.ScaleConfig, dict]:
+    p = params.node_params(params.load_yaml(params.find_config(config)), 'scale')
+    names = {f.name for f in fields(scale.ScaleConfig)}
+    return scale.ScaleConfig(**{k: v for k, v in p.items() if k in names}), p
+
+
+def _objects(m, p: dict) -> tuple[list[scale.ObjectVertices], list[list[int]]]:
+    tp = sfm_outputs.target_points(m)
+    rows = sorted((lm.label, lm_id) for lm_id, lm in m.landmarks.items() if lm.label is not None)
+    lm_ids = np.array([r[1] for r in rows])
+    sheets = list(targets.SHEET_SIZES_M) if p['sheet'] == 'auto' else [p['sheet']]
+    sizes = [(s.width_m, s.height_m) for s in (targets.sheet_model(n) for n in sheets)]
+    objs = scale.group_objects(tp.points, tp.object_ids, tp.target_types, tp.n_obs,
+                               tp.angle_deg, sizes[0], p['cube_edge_m'], tuple(sizes[1:]))
+    return objs, [list(lm_ids[tp.object_ids == o.object_id]) for o in objs]
+
+
+def one(bag: str, config: str | None) -> dict:
+    args = argparse.Namespace(keyframes_from=None, select=True, every=10)
+    camera, gt, frames = bench_sfm._from_bag(bag, args)
+    cfg, p = _scale_config(config or gt['scene']['name'])
+    engine = sfm.IncrementalSfm(camera, sfm.SfmConfig(), np.random.default_rng(0))
+    for stamp, img, _, _ in frames:
+        engine.add_keyframe(stamp, img, bench_sfm._detected(img, camera, gt))
+    engine.finish()
+    m = sfm_outputs.best_segment(engine).map
+    by_stamp = {f['stamp_ns']: np.array(f['T_world_cam'])[:3, 3] for f in gt['frames']}
+    kf = sorted(m.keyframes)
+    truth = evaluation.true_scale(np.array([m.keyframes[k].T_world_cam[:3, 3] for k in kf]),
+                                  np.array([by_stamp[m.keyframes[k].stamp_ns] for k in kf]))
+    out = {'bag': bag, 'keyframes': len(kf), 'true_factor': truth}
+    objs, ids = _objects(m, p)
+    try:
+        est = scale.estimate(objs, cfg, len(kf))
+    except errors.NotObservableError as err:
+        return {**out, 'fitted': f'no scale: {err}'}
+    known = []
+    for obj, lm_ids in zip(objs, ids):
+        try:
+            known += metric_ba.constraints(m, obj, lm_ids, cfg)
+        except errors.NotObservableError:
+            pass
+    t0 = time.process_time()
+    graph_factor, _ = metric_ba.adjust(m, engine.K, known, est.factor,
+                                       metric_ba.LengthFactorConfig())
+    return {**out, 'lengths': len(known), 'graph_cpu_s': time.process_time() - t0,
+            'fitted_mm_per_m': 1e3 * (est.factor / truth - 1.0),
+            'fitted_sigma_mm_per_m': 1e3 * est.sigma / est.factor,
+            'graph_mm_per_m': 1e3 * (graph_factor / truth - 1.0)}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    parser.add_argument('bags', nargs='+')
+    parser.add_argument('--config', default=None)
+    args = parser.parse_args(argv)
+    for bag in args.bags:
+        print(json.dumps(one(bag, args.config), default=float), flush=True)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
