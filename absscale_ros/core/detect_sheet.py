@@ -75,7 +75,7 @@ class SheetConfig:
     roundness_min: float = 0.1
     roundness_max: float = 0.85
     min_solidity: float = 0.85
-    aspect_tol: float = 0.15
+    aspect_tol: float = 0.08
     min_support: float = 0.5
     min_contrast: float = 10.0
     work_max_side_px: int = 480

@@ -146,7 +146,7 @@ def first_hypotheses(regions: list[tuple[npt.NDArray[np.int32], float]], scale: 
     """
     out: list[sheet_partial.Partial] = []
     polys: list[Array] = []
-    for contour, grow in regions:
+    for contour, grow in regions if max_hyps > 0 else ():
         outline = (_dense(contour.reshape(-1, 2).astype(np.float64)) + 0.5) / scale - 0.5
         for poly in polygons(contour, grow):
             if any(len(q) == len(poly) and np.abs(q - poly).max() <= 2.0 for q in polys):
@@ -168,8 +168,9 @@ def hypotheses(poly: Array, K: Array, stub_px: float, outline: Array | None = No
     Return hidden-corner hypotheses of a convex polygon (N, 2) px in which one side is only a
     stub: for every edge taken as the whole side between two seen corners B (first) and L,
     the next long edge is the whole side L T and the previous one the partly seen side
-    towards B; T is the far end of L T. Both polygon orientations are tried. ``outline``
-    (M, 2) px: the seen region's outline, for the occluder test of ``refine``.
+    towards B; T is the far end of L T. Both polygon orientations are tried, the longest
+    pair of whole sides first. ``outline`` (M, 2) px: the seen region's outline, for the
+    occluder test of ``refine``.
     """
     out = []
     for p in (poly, poly[::-1]):
@@ -186,8 +187,9 @@ def hypotheses(poly: Array, K: Array, stub_px: float, outline: Array | None = No
                 continue  # a whole quadrilateral: not this case
             hyp = _hypothesis(p, ls, i, j, k, K, stub_px)
             if hyp is not None:
-                out.append(dataclasses.replace(hyp, outline=outline))
-    return out
+                out.append((length[j] + length[k], len(out),
+                            dataclasses.replace(hyp, outline=outline)))
+    return [h for *_, h in sorted(out, key=lambda x: (-x[0], x[1]))]
 
 
 def _hypothesis(p: Array, ls: list[Array], i: int, j: int, k: int, K: Array, stub_px: float
