@@ -23,7 +23,7 @@ from absscale_ros.core import (lines, quads, sheet_candidates, sheet_partial, sh
 
 Array = npt.NDArray[np.float64]
 FIRST_PASS_SUPPORT = 0.25  # a side less supported after the widest refinement pass: no sheet
-STUB_MAX_HYPS = 8  # stub hypotheses refined per frame at most (deepest occluder cut first)
+STUB_MAX_HYPS = 8  # stub hypotheses refined per frame at most (whitest, longest sides first)
 
 
 @dataclass(frozen=True)

@@ -20,6 +20,7 @@ import numpy.typing as npt
 from absscale_ros.core import lines, sides
 
 Array = npt.NDArray[np.float64]
+FIRST_PASS_SUPPORT = 0.25  # a seen side less supported after the widest pass: not a sheet
 
 
 @dataclass(frozen=True, eq=False)
@@ -85,8 +86,11 @@ def refine(image_bgr: npt.NDArray[np.uint8], hyp: Partial, band_px: float
     rough = np.array([lines.line_through(a, b, centre) for a, b in hyp.seen_ends])
     seen_len = np.linalg.norm(hyp.seen_ends[:, 1] - hyp.seen_ends[:, 0], axis=1)
     n = int(np.clip(seen_len.mean() / 4.0, 16, 64))
-    refined, supports, steps, inside, outside = sides.refine(
-        image_bgr, rough, hyp.seen_ends, (band_px, 4.0, 3.0), n)
+    out = sides.refine_checked(image_bgr, rough, hyp.seen_ends, (band_px, 4.0, 3.0), n,
+                               FIRST_PASS_SUPPORT)
+    if out is None:
+        return None
+    refined, supports, steps, inside, outside = out
     corners = lines.quad_corners(list(refined))
     if corners is None or not cv2.isContourConvex(corners.astype(np.float32)):
         return None

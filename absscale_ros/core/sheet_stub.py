@@ -236,6 +236,8 @@ def refine(image_bgr: npt.NDArray[np.uint8], hyp: sheet_partial.Partial, band_px
     rough = np.array([lines.line_through(a, b, centre) for a, b in hyp.seen_ends])
     seen_len = np.linalg.norm(hyp.seen_ends[:, 1] - hyp.seen_ends[:, 0], axis=1)
     n = int(np.clip(seen_len.mean() / 4.0, 16, 64))
+    # (the stub is not checked after the widest pass: its wide profiles near the corner
+    # still catch the whole side's edge)
     out = sides.refine_checked(image_bgr, rough, hyp.seen_ends, (band_px, 4.0, 3.0), n,
                                FIRST_PASS_SUPPORT, np.array([0, 1, 3]))
     if out is None:

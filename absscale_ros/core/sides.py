@@ -179,17 +179,17 @@ def ridge_ratio(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array, ba
 
 
 def refine_checked(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
-                   bands_px: tuple[float, ...], n: int, min_first_support: float,
+                   bands_px: tuple[float, ...], n: int, min_first_support: float | Array,
                    checked: npt.NDArray[np.intp] | None = None
                    ) -> tuple[Array, Array, Array, Array, Array] | None:
     """
     ``refine``, but give up after the first (widest) pass when a side in ``checked`` (default
-    all) is supported less than ``min_first_support``: most candidates are not the object,
-    and the finer passes cost twice the first.
+    all) is supported less than ``min_first_support`` (one value, or one per checked side):
+    most candidates are not the object, and the finer passes cost twice the first.
     """
     first = refine(image_bgr, lines_, ends, bands_px[:1], n)
     support = first[1] if checked is None else first[1][checked]
-    if support.min() < min_first_support:
+    if (support < min_first_support).any():
         return None
     if len(bands_px) == 1:
         return first
