@@ -36,12 +36,11 @@ class GraphConfig:
     batch_iterations: int = 25
     cull_px: float = 3.0  # observations further than this after a batch are dropped
     window: int = 10  # keyframes iSAM2 may move between batches; older ones are held
-    held_views: int = 2  # observations from held keyframes per landmark in iSAM2 (batch: all)
 
     def __post_init__(self) -> None:
         if min(self.sigma_px, self.vertex_weight, self.huber_k, self.cull_px) <= 0.0 or \
                 self.batch_every < 1 or self.batch_iterations < 1 or self.window < 2 or \
-                self.batch_growth < 0.0 or self.held_views < 1:
+                self.batch_growth < 0.0:
             raise ValueError(f'bad graph config {self}')
 
 
@@ -134,7 +133,7 @@ class SegmentGraph:
             if len(lm.obs_px) < 2:
                 m.dirty.add(lm_id)  # one observation: look again when the second comes
                 continue
-            for kf_id in self._views(lm):
+            for kf_id in lm.obs_px:
                 if (kf_id, lm_id) in self._factors:
                     continue
                 self._factors.add((kf_id, lm_id))
@@ -145,19 +144,6 @@ class SegmentGraph:
                 self._keys.add(point_key(lm_id))
                 values.insert(point_key(lm_id), gtsam.Point3(*lm.point_world))
         return graph, values
-
-    def _views(self, lm: sfm_map.Landmark) -> list[int]:
-        """
-        Keyframes whose observations of ``lm`` go into iSAM2: every free one and only the
-        newest ``held_views`` held ones (held poses are fixed: more of them add cost, not
-        information worth having between batches; a long track would otherwise pull dozens
-        of held poses in).
-        """
-        if self._free_from < 0:
-            return list(lm.obs_px)
-        held = sorted(k for k in lm.obs_px if k < self._free_from)
-        return held[len(held) - self._cfg.held_views:] + \
-            [k for k in lm.obs_px if k >= self._free_from]
 
     def _write_back(self, m: sfm_map.SfmMap, est: gtsam.Values) -> None:
         for kf_id, kf in m.keyframes.items():
