@@ -172,8 +172,8 @@ def usable(n_obs: npt.NDArray[np.int64], angles_deg: FloatArray,
         (np.asarray(angles_deg) >= cfg.min_angle_deg)
 
 
-def _drop_outlier_vertex(points: FloatArray, model_m: FloatArray,
-                         cfg: ScaleConfig) -> tuple[FloatArray, str | None]:
+def drop_outlier_vertex(points: FloatArray, model_m: FloatArray,
+                        cfg: ScaleConfig) -> tuple[FloatArray, str | None]:
     """Leave out the one vertex that spoils the fit to the model, if one clearly does."""
     try:
         measured, true_m = object_lengths(points, model_m, cfg)
@@ -274,7 +274,7 @@ def estimate(objects: list[ObjectVertices], cfg: ScaleConfig,
             continue
         try:
             model = which_model(pts, obj, cfg)
-            pts, dropped = _drop_outlier_vertex(pts, model, cfg)
+            pts, dropped = drop_outlier_vertex(pts, model, cfg)
             m, t = object_lengths(pts, model, cfg)
         except DegenerateGeometryError as err:
             rejected.append(f'object {obj.object_id}: {err}')
