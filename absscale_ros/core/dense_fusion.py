@@ -32,6 +32,7 @@ class FusionConfig:
     consistency_rel: float = 0.005  # depths agreeing within this fraction are the same surface
     min_consistent: int = 1  # other keyframes' depth maps that must agree
     neighbours: int = 3  # keyframes on each side a depth pixel is checked against
+    max_new_maps: int = 4  # stereo pairs computed per update at most (the rest wait)
     both_sides: bool = True  # a partner on each side of a keyframe (two depth maps), else one
     recompute_deg: float = 0.2  # pair rotation / baseline direction moved more: new depth
     outlier_neighbours: int = 16  # statistical outlier removal: neighbours considered
@@ -64,6 +65,8 @@ class DenseFusion:
         self.stereo, self.cfg = stereo, fusion
         self._frames: dict[int, _Keyframe] = {}
         self.depth_computed = 0  # stereo pairs run so far (recomputations included)
+        self.backlog = False  # depth maps left for later by the per-update budget
+        self._poses: dict[int, FloatArray] = {}
 
     def add_keyframe(self, stamp_ns: int, image_bgr: np.ndarray, camera: CameraModel) -> None:
         """Keep a keyframe (at the working scale) until its pose is known."""
@@ -83,7 +86,12 @@ class DenseFusion:
             old, kf.pose = kf.pose, np.asarray(poses[s], np.float64)
             moved |= old is None or not np.allclose(old, kf.pose, atol=1e-9)
         # Clouds live in their keyframe's camera frame: a pose that moves only moves them.
-        outcome = [self._refresh_depth(stamps, i) for i in range(len(stamps))]
+        # Newest first, at most max_new_maps stereo pairs: a backlog (all keyframes when the
+        # scale is first claimed) is spread over the following updates.
+        self._budget, self.backlog, self._poses = self.cfg.max_new_maps, False, poses
+        outcome = [1.0] * len(stamps)
+        for i in reversed(range(len(stamps))):
+            outcome[i] = self._refresh_depth(stamps, i)
         for i, s in enumerate(stamps):
             kf = self._frames[s]
             if not kf.depths:
@@ -94,6 +102,10 @@ class DenseFusion:
                 kf.cloud.scale(outcome[i], np.zeros(3))  # a new scale: depth x baseline ratio
         self._stamps = stamps
         return moved or any(o != 1.0 for o in outcome)
+
+    def catch_up(self) -> bool:
+        """Work on the backlog with the latest poses; returns whether the cloud changed."""
+        return self.backlog and self.update(self._poses)
 
     def _refresh_depth(self, stamps: list[int], i: int) -> float:
         """
@@ -133,6 +145,10 @@ class DenseFusion:
                     scored.append((q, j))
         if not scored:  # no partner on this side (any more)
             return _NEW if kf.depths.pop(side, None) is not None else None
+        if self._budget <= 0:
+            self.backlog = True
+            return None  # left for a later update (``catch_up``)
+        self._budget -= 1
         j = min(scored)[1]
         partner = self._frames[stamps[j]]
         kf.depths[side] = dense_stereo.compute_depth(kf.image, partner.image, kf.camera,

@@ -38,6 +38,7 @@ class DenseNode(Node):
         self._fusion = dense_fusion.DenseFusion(stereo, fusion)
         self._camera: Any = None
         self._points = 0
+        self._stamp_ns = 0  # of the latest path: the cloud's stamp
         self.update_s: list[float] = []  # CPU time of each update that changed the cloud
         self.update_wall_s: list[float] = []
         self._pub = self.create_publisher(PointCloud2, '/scaled_cloud', common.LATCHED)
@@ -49,6 +50,8 @@ class DenseNode(Node):
                                                 common.RELIABLE)
         self._path_sub = self.create_subscription(Path, '/absscale/scaled_path', self._on_path,
                                                   LATE_JOINER)
+        # Depth maps past the per-update budget are computed between messages.
+        self.create_timer(0.1, self._catch_up)
 
     def _on_info(self, msg: CameraInfo) -> None:
         self._camera = conversions.camera_info_to_model(msg)
@@ -64,20 +67,27 @@ class DenseNode(Node):
         self._ack.ack(msg.header.stamp, self._kf_sub.topic_name)
 
     def _on_path(self, msg: Path) -> None:
-        outputs = []
         c0, t0 = time.process_time(), time.perf_counter()
         poses, stamps = conversions.path_msg_to_poses(msg)
-        if self._fusion.update(dense_fusion.pose_matrices(poses, stamps)):
-            xyz, rgb, normals = self._fusion.cloud()
-            stamp_ns = conversions.stamp_to_ns(msg.header.stamp)
-            self._pub.publish(conversions.dense_cloud_msg(xyz, rgb, normals, stamp_ns,
-                                                          self._frame))
-            outputs.append(self._pub.topic_name)
-            self._points = len(xyz)
-            self.update_s.append(time.process_time() - c0)
-            self.update_wall_s.append(time.perf_counter() - t0)
-            self._diag.publish('ok', f'{self._points} points', self.report_summary(), stamp_ns)
+        self._stamp_ns = conversions.stamp_to_ns(msg.header.stamp)
+        changed = self._fusion.update(dense_fusion.pose_matrices(poses, stamps))
+        outputs = self._publish(c0, t0) if changed else []
         self._ack.ack(msg.header.stamp, self._path_sub.topic_name, outputs)
+
+    def _catch_up(self) -> None:
+        c0, t0 = time.process_time(), time.perf_counter()
+        if self._fusion.catch_up():
+            self._publish(c0, t0)
+
+    def _publish(self, c0: float, t0: float) -> list[str]:
+        xyz, rgb, normals = self._fusion.cloud()
+        self._pub.publish(conversions.dense_cloud_msg(xyz, rgb, normals, self._stamp_ns,
+                                                      self._frame))
+        self._points = len(xyz)
+        self.update_s.append(time.process_time() - c0)
+        self.update_wall_s.append(time.perf_counter() - t0)
+        self._diag.publish('ok', f'{self._points} points', self.report_summary(), self._stamp_ns)
+        return [self._pub.topic_name]
 
     def report_summary(self) -> dict[str, Any]:
         times = self.update_s or [float('nan')]

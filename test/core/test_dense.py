@@ -16,6 +16,8 @@ def _fused(poses: list[np.ndarray], fusion: dense_fusion.DenseFusion | None = No
         for k, image in enumerate(images):
             fusion.add_keyframe(k, image, cam)
     fusion.update(dict(enumerate(poses)))
+    while fusion.backlog:  # past the per-update budget of stereo pairs
+        fusion.catch_up()
     return fusion
 
 
