@@ -68,6 +68,7 @@ class Segment:
     map: sfm_map.SfmMap
     graph: sfm_graph.SegmentGraph
     pending: list[sfm_map.MapKeyframe] = field(default_factory=list)  # before initialisation
+    forgotten: int = 0  # keyframes (oldest first) whose descriptors were dropped
 
     @property
     def initialised(self) -> bool:
@@ -116,7 +117,25 @@ class IncrementalSfm:
         if status in ('registered', 'relocalised') and seg.graph.batch_due(len(seg.map.keyframes)):
             culled = seg.graph.batch(seg.map, self._progress)
             msg += f'; batch adjustment culled {culled} landmarks'
+        self._forget_descriptors()
         return self._result(status, msg)
+
+    def _forget_descriptors(self) -> None:
+        """
+        Drop the descriptors (~1 MB a keyframe) of keyframes no match can reach any more: all
+        but the newest of the current segment (registration, relocalisation and the local map
+        look no further back) and all of the finished segments. Memory then stays flat over
+        a long scan instead of growing ~4 MB per second of video.
+        """
+        keep = max(self.cfg.match_window, self.cfg.relocalise_window,
+                   self.cfg.local_cfg.keyframes, self.cfg.max_pending)
+        for seg in self.segments:
+            ids = sorted(seg.map.keyframes)
+            upto = len(ids) if seg is not self.current else max(0, len(ids) - keep)
+            for kf_id in ids[seg.forgotten:upto]:
+                kf = seg.map.keyframes[kf_id]
+                kf.features = replace(kf.features, descriptors=kf.features.descriptors[:0])
+            seg.forgotten = max(seg.forgotten, upto)
 
     def finish(self) -> UpdateResult:
         """Final batch adjustment of every initialised segment; the result of the current one."""

@@ -38,8 +38,11 @@ def test_windowed_smoother_on_a_longer_orbit() -> None:
     # iSAM2 holds all but the newest 3 keyframes fixed between batches (restarted every 3);
     # the map must stay as accurate as the issue asks, the final batch included.
     seq = sfm_scenes.make_sequence('indoor_paper', 3, count=12, arc_deg=50.0)
+    # A short matching reach: descriptors of keyframes beyond it are dropped (memory).
     cfg = replace(sfm.SfmConfig(), graph_cfg=replace(sfm_graph.GraphConfig(), window=3,
-                                                     batch_every=10))
+                                                     batch_every=10),
+                  relocalise_window=4, max_pending=2,
+                  local_cfg=replace(sfm.SfmConfig().local_cfg, keyframes=4))
     engine = sfm.IncrementalSfm(seq.camera, cfg, np.random.default_rng(7))
     held = []
     for k, img in enumerate(seq.images_bgr):
@@ -49,6 +52,8 @@ def test_windowed_smoother_on_a_longer_orbit() -> None:
     result = engine.finish()
     ids, T = engine.current.map.poses()
     assert result.keyframes == 12 and result.reprojection_rms_px <= 1.0
+    kept = [len(engine.current.map.keyframes[i].features.descriptors) > 0 for i in ids]
+    assert kept == [False] * 8 + [True] * 4  # the newest 4 can still be matched
     gt = seq.T_world_cams[ids, :3, 3]
     s, R, t = align.umeyama(T[:, :3, 3], gt)
     length_m = float(np.sum(np.linalg.norm(np.diff(gt, axis=0), axis=1)))
