@@ -32,7 +32,7 @@ class FusionConfig:
     consistency_rel: float = 0.005  # depths agreeing within this fraction are the same surface
     min_consistent: int = 1  # other keyframes' depth maps that must agree
     neighbours: int = 3  # keyframes on each side a depth pixel is checked against
-    max_new_maps: int = 4  # stereo pairs computed per update at most (the rest wait)
+    max_new_maps: int = 2  # stereo pairs computed per update at most (the rest wait)
     both_sides: bool = True  # a partner on each side of a keyframe (two depth maps), else one
     recompute_deg: float = 0.2  # pair rotation / baseline direction moved more: new depth
     outlier_neighbours: int = 16  # statistical outlier removal: neighbours considered

@@ -64,4 +64,5 @@ def test_dense_cloud_from_keyframes_and_metric_path(context) -> None:
     depth = np.median(np.linalg.norm(xyz - poses[0][:3, 3], axis=1))
     assert np.median(mesh.distance(xyz)) < 0.01 * depth
     report = node.report()
-    assert report['keyframes_fused'] == len(images) and len(report['update_s']) == len(clouds)
+    # Depth 1: a subscriber may miss intermediate clouds, never the last.
+    assert report['keyframes_fused'] == len(images) and len(report['update_s']) >= len(clouds) >= 2
