@@ -50,8 +50,11 @@ class DenseNode(Node):
                                                 common.RELIABLE)
         self._path_sub = self.create_subscription(Path, '/absscale/scaled_path', self._on_path,
                                                   LATE_JOINER)
-        # Depth maps past the per-update budget are computed between messages.
-        self.create_timer(0.1, self._catch_up)
+        # Depth maps past the per-update budget are computed with each keyframe image and, once
+        # the graph is idle for a second, by a timer (a busy timer would starve the other
+        # nodes of this executor and time the lossless replay out).
+        self._last_msg = time.monotonic()
+        self.create_timer(1.0, self._catch_up_when_idle)
 
     def _on_info(self, msg: CameraInfo) -> None:
         self._camera = conversions.camera_info_to_model(msg)
@@ -65,6 +68,8 @@ class DenseNode(Node):
         else:
             self._fusion.add_keyframe(conversions.stamp_to_ns(msg.header.stamp), image, cam)
         self._ack.ack(msg.header.stamp, self._kf_sub.topic_name)
+        self._catch_up()
+        self._last_msg = time.monotonic()
 
     def _on_path(self, msg: Path) -> None:
         c0, t0 = time.process_time(), time.perf_counter()
@@ -73,6 +78,11 @@ class DenseNode(Node):
         changed = self._fusion.update(dense_fusion.pose_matrices(poses, stamps))
         outputs = self._publish(c0, t0) if changed else []
         self._ack.ack(msg.header.stamp, self._path_sub.topic_name, outputs)
+        self._last_msg = time.monotonic()
+
+    def _catch_up_when_idle(self) -> None:
+        if time.monotonic() - self._last_msg > 1.0:
+            self._catch_up()
 
     def _catch_up(self) -> None:
         c0, t0 = time.process_time(), time.perf_counter()
