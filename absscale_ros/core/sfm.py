@@ -69,6 +69,7 @@ class Segment:
     graph: sfm_graph.SegmentGraph
     pending: list[sfm_map.MapKeyframe] = field(default_factory=list)  # before initialisation
     forgotten: int = 0  # keyframes (oldest first) whose descriptors were dropped
+    released: bool = False  # finished, and its iSAM2 state let go
 
     @property
     def initialised(self) -> bool:
@@ -124,8 +125,8 @@ class IncrementalSfm:
         """
         Drop the descriptors (~1 MB a keyframe) of keyframes no match can reach any more: all
         but the newest of the current segment (registration, relocalisation and the local map
-        look no further back) and all of the finished segments. Memory then stays flat over
-        a long scan instead of growing ~4 MB per second of video.
+        look no further back) and all of the finished segments, whose iSAM2 state goes too
+        (``finish`` adjusts them from their maps).
         """
         keep = max(self.cfg.match_window, self.cfg.relocalise_window,
                    self.cfg.local_cfg.keyframes, self.cfg.max_pending)
@@ -134,8 +135,13 @@ class IncrementalSfm:
             upto = len(ids) if seg is not self.current else max(0, len(ids) - keep)
             for kf_id in ids[seg.forgotten:upto]:
                 kf = seg.map.keyframes[kf_id]
-                kf.features = replace(kf.features, descriptors=kf.features.descriptors[:0])
+                d = kf.features.descriptors  # a new empty array: a [:0] view keeps the buffer
+                kf.features = replace(kf.features, descriptors=np.empty((0, *d.shape[1:]),
+                                                                        d.dtype))
             seg.forgotten = max(seg.forgotten, upto)
+            if seg is not self.current and not seg.released:
+                seg.graph.release()  # a finished segment's iSAM2 (~100 MB) until ``finish``
+                seg.released = True
 
     def finish(self) -> UpdateResult:
         """Final batch adjustment of every initialised segment; the result of the current one."""

@@ -81,6 +81,10 @@ class SegmentGraph:
         self._gauge_done = free_from >= 0  # held keyframes fix the gauge
         self._all_pending = True  # next _new_terms looks at every landmark, not just dirty ones
 
+    def release(self) -> None:
+        """Let go of the iSAM2 state (a finished segment); ``batch`` still works after."""
+        self._reset()
+
     @property
     def held_before(self) -> int:
         """Keyframes with ids below this one are held fixed in iSAM2 (-1: none)."""
