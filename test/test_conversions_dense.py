@@ -1,4 +1,4 @@
-"""The dense cloud message (x y z, packed rgb, normals) read back byte by byte and by the module."""
+"""The dense cloud message (x y z, packed rgb, normals) read back byte by byte and by module."""
 import struct
 
 from absscale_ros import conversions
