@@ -2,7 +2,7 @@
 Start the absscale_ros graph on a machine with a full ROS 2 Jazzy install.
 
   ros2 launch absscale_ros absscale.launch.py config:=indoor_paper \
-      image:=/camera/image_raw/compressed camera_info:=/camera/camera_info
+      image:=/camera/image_raw/compressed camera_info:=/camera/camera_info [dense:=true]
 
 Then feed it a camera driver, `ros2 bag play BAG`, or `video_source`.
 """
@@ -26,9 +26,14 @@ def _nodes(context, *args, **kwargs):
     lib = os.path.join(os.path.dirname(os.path.dirname(share)), 'lib', 'absscale_ros')
     remaps = [('/camera/image_raw/compressed', LaunchConfiguration('image').perform(context)),
               ('/camera/camera_info', LaunchConfiguration('camera_info').perform(context))]
+    dense = LaunchConfiguration('dense').perform(context).lower() in ('true', '1')
+    # With the dense node, it owns /scaled_cloud and the sparse metric cloud moves aside
+    # (as `absscale run` does for `dense: enabled: true`).
+    extra = {'scale': [{'cloud_topic': '/absscale/sparse_cloud_metric'}]} if dense else {}
+    names = NODES + (['dense'] if dense else [])
     return [Node(package='absscale_ros', executable=name, name=name, output='screen',
-                 parameters=[params], remappings=remaps)
-            for name in NODES if os.path.exists(os.path.join(lib, name))]
+                 parameters=[params, *extra.get(name, [])], remappings=remaps)
+            for name in names if os.path.exists(os.path.join(lib, name))]
 
 
 def generate_launch_description():
@@ -39,5 +44,8 @@ def generate_launch_description():
                               description='camera image topic (Image or CompressedImage)'),
         DeclareLaunchArgument('camera_info', default_value='/camera/camera_info',
                               description='camera_info topic'),
+        DeclareLaunchArgument('dense', default_value='false',
+                              description='true: also the dense node (dense cloud on '
+                              '/scaled_cloud, sparse on /absscale/sparse_cloud_metric)'),
         OpaqueFunction(function=_nodes),
     ])
