@@ -5,6 +5,7 @@ Every node of the pipeline that exists is started with its section of the config
 ``bag_replay`` steps the bag through them losslessly; the run ends when the bag is done and
 the graph has drained the last frame.
 """
+import ctypes
 from dataclasses import dataclass
 import importlib
 import json
@@ -38,6 +39,7 @@ PIPELINE: list[tuple[str, str, str]] = [
     ('dense', 'absscale_ros.nodes.dense', 'DenseNode'),
 ]
 MEMORY_PERIOD_S = 5.0
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
 # With the dense node on, it owns /scaled_cloud and the sparse metric cloud moves here.
 SPARSE_METRIC_TOPIC = '/absscale/sparse_cloud_metric'
 
@@ -212,7 +214,7 @@ class _NodeProcesses:
             self._procs[name] = subprocess.Popen(
                 [sys.executable, '-c', code, *args],
                 env=dict(env, ABSSCALE_REPORT=str(Path(self._dir.name) / f'{name}.json')),
-                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, preexec_fn=_die_with_parent)
         self._reports: dict[str, Any] | None = None
 
     def stop(self) -> dict[str, Any]:
@@ -234,6 +236,15 @@ class _NodeProcesses:
         self._dir.cleanup()
         self._reports = reports
         return reports
+
+
+def _die_with_parent() -> None:
+    """
+    In a node process before it starts: end it when the runner dies. A runner killed by
+    SIGTERM or SIGKILL runs no cleanup, and its nodes would go on replaying into nothing.
+    """
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
 def _spin(executor: Any, replay: BagReplayNode, monitor: GraphMonitorNode,

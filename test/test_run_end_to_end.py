@@ -3,6 +3,7 @@ import json
 from pathlib import Path
 import subprocess
 import sys
+import time
 
 from absscale_ros import bagio
 from bagfactory import write_camera_bag
@@ -62,3 +63,45 @@ def test_processes_give_the_same_result_as_one_process(tmp_path: Path) -> None:
     one, procs = reports
     assert procs['replay']['step_timeouts'] == 0
     assert _deterministic(procs) == _deterministic(one)
+
+
+def _node_children(pid: int) -> list[int]:
+    """Processes whose parent is ``pid`` and that run an absscale node."""
+    found = []
+    for status in Path('/proc').glob('[0-9]*/status'):
+        try:
+            ppid = int(next(line for line in status.read_text().splitlines()
+                            if line.startswith('PPid:')).split()[1])
+            cmd = (status.parent / 'cmdline').read_bytes()
+        except (OSError, StopIteration, ValueError):
+            continue  # gone meanwhile
+        if ppid == pid and b'absscale_ros.nodes.' in cmd:
+            found.append(int(status.parent.name))
+    return found
+
+
+def test_a_killed_runner_takes_its_node_processes_with_it(tmp_path: Path) -> None:
+    bag = tmp_path / 'cam.mcap'
+    write_camera_bag(bag, frames=300, size=(640, 360))
+    runner = subprocess.Popen([sys.executable, '-m', 'absscale_ros.cli', 'run', str(bag),
+                               '--processes', '--quiet', '--out', str(tmp_path / 'out')],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60.0
+        while len(children := _node_children(runner.pid)) < 5 and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert len(children) >= 5, children
+    finally:
+        runner.kill()  # SIGKILL: no cleanup of its own can run
+        runner.wait()
+    deadline = time.monotonic() + 20.0
+    while any(_runs_a_node(c) for c in children):
+        assert time.monotonic() < deadline, 'node processes outlived their runner'
+        time.sleep(0.2)
+
+
+def _runs_a_node(pid: int) -> bool:
+    try:
+        return b'absscale_ros.nodes.' in Path(f'/proc/{pid}/cmdline').read_bytes()
+    except OSError:
+        return False  # gone (a zombie's cmdline is empty)
