@@ -60,8 +60,8 @@ def constraints(m: sfm_map.SfmMap, obj: scale.ObjectVertices, lm_ids: list[int],
     try:
         model = scale.which_model(pts, obj, cfg)
         kept, _ = scale.drop_outlier_vertex(pts, model, cfg)  # as the fitted factor does
-        keep = keep[[int(np.flatnonzero((pts == p).all(axis=1))[0]) for p in kept]]
-        ids, _ = scale.assign_to_model(kept, model, cfg)
+        keep = keep[kept]
+        ids, _ = scale.assign_to_model(pts[kept], model, cfg)
     except DegenerateGeometryError as err:
         raise NotObservableError(str(err)) from err
     out = []

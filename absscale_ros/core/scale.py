@@ -173,20 +173,25 @@ def usable(n_obs: npt.NDArray[np.int64], angles_deg: FloatArray,
 
 
 def drop_outlier_vertex(points: FloatArray, model_m: FloatArray,
-                        cfg: ScaleConfig) -> tuple[FloatArray, str | None]:
-    """Leave out the one vertex that spoils the fit to the model, if one clearly does."""
+                        cfg: ScaleConfig) -> tuple[npt.NDArray[np.int64], str | None]:
+    """
+    Leave out the one vertex that spoils the fit to the model, if one clearly does.
+
+    :returns: indices of the vertices kept, and what was left out (None: nothing).
+    """
+    everything = np.arange(len(points))
     try:
         measured, true_m = object_lengths(points, model_m, cfg)
         ratio = true_m / measured
         med = np.median(ratio)
         mad = 1.4826 * np.median(np.abs(ratio - med)) + 1e-12
         if not np.any(np.abs(ratio - med) > cfg.outlier_sigma * mad):
-            return points, None
+            return everything, None
     except DegenerateGeometryError:
         if len(points) <= cfg.min_vertices:
             raise
     if len(points) <= cfg.min_vertices:
-        return points, None
+        return everything, None
     misfits = []
     for k in range(len(points)):
         try:
@@ -196,7 +201,7 @@ def drop_outlier_vertex(points: FloatArray, model_m: FloatArray,
     worst = int(np.argmin(misfits))
     if not np.isfinite(misfits[worst]):
         raise DegenerateGeometryError('no vertex subset fits the target shape')
-    return np.delete(points, worst, axis=0), f'vertex {worst} left out (misfit ' \
+    return np.delete(everything, worst), f'vertex {worst} left out (misfit ' \
         f'{misfits[worst]:.4f} without it)'
 
 
@@ -274,7 +279,8 @@ def estimate(objects: list[ObjectVertices], cfg: ScaleConfig,
             continue
         try:
             model = which_model(pts, obj, cfg)
-            pts, dropped = drop_outlier_vertex(pts, model, cfg)
+            kept, dropped = drop_outlier_vertex(pts, model, cfg)
+            pts = pts[kept]
             m, t = object_lengths(pts, model, cfg)
         except DegenerateGeometryError as err:
             rejected.append(f'object {obj.object_id}: {err}')

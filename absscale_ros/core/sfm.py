@@ -131,6 +131,8 @@ class IncrementalSfm:
         keep = max(self.cfg.match_window, self.cfg.relocalise_window,
                    self.cfg.local_cfg.keyframes, self.cfg.max_pending)
         for seg in self.segments:
+            if seg.released:
+                continue  # finished: everything was dropped when it was released
             ids = sorted(seg.map.keyframes)
             upto = len(ids) if seg is not self.current else max(0, len(ids) - keep)
             for kf_id in ids[seg.forgotten:upto]:

@@ -74,6 +74,14 @@ def hypotheses(poly: Array, min_seen: float) -> list[Partial]:
     return out
 
 
+def rough_sides(hyp: Partial) -> tuple[Array, int]:
+    """(4, 3) lines through the seen side ends (oriented by the centre) and profiles per side."""
+    centre = hyp.corners.mean(axis=0)
+    rough = np.array([lines.line_through(a, b, centre) for a, b in hyp.seen_ends])
+    seen_len = np.linalg.norm(hyp.seen_ends[:, 1] - hyp.seen_ends[:, 0], axis=1)
+    return rough, int(np.clip(seen_len.mean() / 4.0, 16, 64))
+
+
 def refine(image_bgr: npt.NDArray[np.uint8], hyp: Partial, band_px: float
            ) -> tuple[Array, Array, Array, Array, Array, Array] | None:
     """
@@ -82,10 +90,7 @@ def refine(image_bgr: npt.NDArray[np.uint8], hyp: Partial, band_px: float
     :returns: ((4, 2) corners, (4,) supports, (4,) colour steps, (4, 3) inside colours,
         (4, 3) outside colours, (5, 2) outline of the seen part) or None.
     """
-    centre = hyp.corners.mean(axis=0)
-    rough = np.array([lines.line_through(a, b, centre) for a, b in hyp.seen_ends])
-    seen_len = np.linalg.norm(hyp.seen_ends[:, 1] - hyp.seen_ends[:, 0], axis=1)
-    n = int(np.clip(seen_len.mean() / 4.0, 16, 64))
+    rough, n = rough_sides(hyp)
     out = sides.refine_checked(image_bgr, rough, hyp.seen_ends, (band_px, 4.0, 3.0), n,
                                FIRST_PASS_SUPPORT)
     if out is None:

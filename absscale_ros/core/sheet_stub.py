@@ -232,10 +232,7 @@ def refine(image_bgr: npt.NDArray[np.uint8], hyp: sheet_partial.Partial, band_px
     :returns: ((4, 2) corners, (4,) supports, (4,) colour steps, (4, 3) inside colours,
         (4, 3) outside colours, (5, 2) outline of the seen part) or None.
     """
-    centre = hyp.corners.mean(axis=0)
-    rough = np.array([lines.line_through(a, b, centre) for a, b in hyp.seen_ends])
-    seen_len = np.linalg.norm(hyp.seen_ends[:, 1] - hyp.seen_ends[:, 0], axis=1)
-    n = int(np.clip(seen_len.mean() / 4.0, 16, 64))
+    rough, n = sheet_partial.rough_sides(hyp)
     # (the stub is not checked after the widest pass: its wide profiles near the corner
     # still catch the whole side's edge)
     out = sides.refine_checked(image_bgr, rough, hyp.seen_ends, (band_px, 4.0, 3.0), n,

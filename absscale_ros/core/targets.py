@@ -156,3 +156,16 @@ class TargetDetection:
         if self.vertex_scores is None:
             return np.full(len(self.vertices_px), self.score)
         return np.asarray(self.vertex_scores, dtype=np.float64)
+
+
+def sheet_sizes_m(sheet: str, custom_m: tuple[float, float] | None = None
+                  ) -> list[tuple[float, float]]:
+    """
+    The (short, long) sheet sizes to try, m, the configured one first.
+
+    :param sheet: a name of ``SHEET_SIZES_M``, or 'auto' for all of them (the scale stage then
+        keeps the one the reconstructed corners fit).
+    :param custom_m: a custom size, which overrides ``sheet``.
+    """
+    names = list(SHEET_SIZES_M) if sheet == 'auto' and not custom_m else [sheet]
+    return [(m.width_m, m.height_m) for m in (sheet_model(n, custom_m) for n in names)]

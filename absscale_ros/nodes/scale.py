@@ -33,10 +33,7 @@ class ScaleNode(Node):
             ('cloud_topic', '/scaled_cloud')])}
         custom = tuple(p['sheet_size_m']) if min(p['sheet_size_m']) > 0 else None
         # 'auto': letter or A4, whichever the reconstructed corners fit (a tie claims nothing).
-        names = list(targets.SHEET_SIZES_M) if p['sheet'] == 'auto' and not custom \
-            else [p['sheet']]
-        sizes = [(m.width_m, m.height_m) for m in
-                 (targets.sheet_model(n, custom) for n in names)]
+        sizes = targets.sheet_sizes_m(p['sheet'], custom)
         self._sheet_m, self._sheet_alternatives = sizes[0], tuple(sizes[1:])
         self._cube_m = p['cube_edge_m']
         self._frame, self._min_change = p['frame_id'], p['min_change']

@@ -30,8 +30,8 @@ def _objects(m, p: dict) -> tuple[list[scale.ObjectVertices], list[list[int]]]:
     tp = sfm_outputs.target_points(m)
     rows = sorted((lm.label, lm_id) for lm_id, lm in m.landmarks.items() if lm.label is not None)
     lm_ids = np.array([r[1] for r in rows])
-    sheets = list(targets.SHEET_SIZES_M) if p['sheet'] == 'auto' else [p['sheet']]
-    sizes = [(s.width_m, s.height_m) for s in (targets.sheet_model(n) for n in sheets)]
+    custom = tuple(p['sheet_size_m']) if min(p['sheet_size_m']) > 0 else None
+    sizes = targets.sheet_sizes_m(p['sheet'], custom)
     objs = scale.group_objects(tp.points, tp.object_ids, tp.target_types, tp.n_obs,
                                tp.angle_deg, sizes[0], p['cube_edge_m'], tuple(sizes[1:]))
     return objs, [list(lm_ids[tp.object_ids == o.object_id]) for o in objs]

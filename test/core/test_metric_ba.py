@@ -1,22 +1,18 @@
 """Known-length factors inside the bundle adjustment recover the metric scale of a map."""
+from pathlib import Path
+import sys
+
 import numpy as np
 import pytest
 
 from absscale_ros.core import features as feat, metric_ba, scale, sfm_map
 from absscale_ros.core.errors import NotObservableError
 
+sys.path.insert(0, str(Path(__file__).parent))
+from sfm_scenes import look_at  # noqa: E402
+
 K = np.array([[800.0, 0.0, 640.0], [0.0, 800.0, 360.0], [0.0, 0.0, 1.0]])
 TRUE_FACTOR = 2.5  # metres per map unit of the synthetic map
-
-
-def _look_at(centre: np.ndarray, target: np.ndarray) -> np.ndarray:
-    z = (target - centre) / np.linalg.norm(target - centre)
-    x = np.cross(z, [0.0, 0.0, 1.0])
-    x /= np.linalg.norm(x)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1)
-    T[:3, 3] = centre
-    return T
 
 
 def _project(T: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -31,7 +27,7 @@ def _map(rng: np.random.Generator, noise_px: float) -> tuple[sfm_map.SfmMap, lis
     empty = feat.Features(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros((0, 128), np.float32),
                           np.zeros((0, 3), np.uint8))
     m = sfm_map.SfmMap()
-    poses_m = [_look_at(np.array([-3.0, y, 1.5]), np.array([3.0, 0.0, 0.5]))
+    poses_m = [look_at(np.array([-3.0, y, 1.5]), np.array([3.0, 0.0, 0.5]))
                for y in np.linspace(-2.0, 2.0, 8)]
     for i, T in enumerate(poses_m):
         T_map = T.copy()
