@@ -21,11 +21,12 @@ from typing import Any, Callable
 
 from absscale_ros import params
 from absscale_ros.domains import DomainLease
+from absscale_ros.nodes import common
 from absscale_ros.nodes.bag_replay import BagReplayNode
 from absscale_ros.nodes.graph_monitor import GraphMonitorNode
 import numpy as np
 import rclpy
-from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
+from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
@@ -125,6 +126,8 @@ def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
     config_path = params.find_config(config)
     sections = params.load_yaml(config_path)
     lease = DomainLease() if options.domain_id is None else None
+    # Read when this process's first DDS participant starts (the replay's frames are large).
+    os.environ.update(params.dds_environment())
     context = rclpy.Context()
     rclpy.init(context=context, args=[], domain_id=options.domain_id if lease is None
                else lease.domain_id)
@@ -156,7 +159,7 @@ def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
         # and rclpy's multi-threaded executor costs ~40 % more CPU (measured on the sample bag).
         # A step window > 1 overlaps the stages across processes (--processes).
         executor = MultiThreadedExecutor(num_threads=3, context=context) if options.live \
-            else SingleThreadedExecutor(context=context)
+            else common.single_threaded_executor(context)
         for node in [*nodes.values(), monitor, replay]:
             executor.add_node(node)
         memory: list[list[float]] = []
@@ -197,7 +200,7 @@ class _NodeProcesses:
 
     def __init__(self, config_path: Path, domain_id: int, live: bool) -> None:
         self._dir = tempfile.TemporaryDirectory(prefix='absscale_nodes_')
-        env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
+        env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), **params.dds_environment())
         sections = params.load_yaml(config_path)
         found = dict(available_nodes(sections))
         self.names = list(found)

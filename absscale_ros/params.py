@@ -4,6 +4,7 @@ ROS parameter YAML files and config lookup (no rclpy).
 A config file has one ``<node_name>: ros__parameters:`` section per node, as ``ros2 launch``
 and ``--params-file`` expect; ``/**`` sections apply to every node.
 """
+import os
 from pathlib import Path
 import sys
 from typing import Any
@@ -39,6 +40,22 @@ def find_config(name_or_path: str) -> Path:
             return candidate
     raise AbsScaleError(f'unknown config {name_or_path!r}: use one of '
                         f'{", ".join(CONFIG_NAMES)} or a path to a YAML file')
+
+
+DDS_PROFILE_VARIABLE = 'FASTRTPS_DEFAULT_PROFILES_FILE'
+
+
+def dds_environment() -> dict[str, str]:
+    """
+    The Fast DDS profile for frames between processes (``config/fastdds_shm.xml``: a shared
+    memory segment that holds a whole decoded frame), unless the user chose one already.
+    """
+    if os.environ.get(DDS_PROFILE_VARIABLE):
+        return {}
+    for folder in config_dirs():
+        if (folder / 'fastdds_shm.xml').is_file():
+            return {DDS_PROFILE_VARIABLE: str(folder / 'fastdds_shm.xml')}
+    return {}
 
 
 def load_yaml(path: Path) -> dict[str, dict[str, Any]]:

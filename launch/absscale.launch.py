@@ -31,8 +31,12 @@ def _nodes(context, *args, **kwargs):
     # (as `absscale run` does for `dense: enabled: true`).
     extra = {'scale': [{'cloud_topic': '/absscale/sparse_cloud_metric'}]} if dense else {}
     names = NODES + (['dense'] if dense else [])
+    # Frames are 2.7 MB: a shared-memory segment that holds them whole, unless one is set.
+    env = {} if os.environ.get('FASTRTPS_DEFAULT_PROFILES_FILE') else {
+        'FASTRTPS_DEFAULT_PROFILES_FILE': os.path.join(share, 'config', 'fastdds_shm.xml')}
     return [Node(package='absscale_ros', executable=name, name=name, output='screen',
-                 parameters=[params, *extra.get(name, [])], remappings=remaps)
+                 parameters=[params, *extra.get(name, [])], remappings=remaps,
+                 additional_env=env)
             for name in names if os.path.exists(os.path.join(lib, name))]
 
 

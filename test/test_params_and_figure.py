@@ -29,6 +29,20 @@ def test_nested_yaml_flattens_and_wildcard_merges(tmp_path: Path) -> None:
         params.load_yaml(f)
 
 
+def test_dds_profile_holds_a_whole_frame_unless_the_user_chose_one(monkeypatch) -> None:
+    import xml.etree.ElementTree as ET
+    monkeypatch.delenv(params.DDS_PROFILE_VARIABLE, raising=False)
+    path = Path(params.dds_environment()[params.DDS_PROFILE_VARIABLE])
+    ns = {'f': 'http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles'}
+    shm, = [d for d in ET.parse(path).getroot().iterfind('.//f:transport_descriptor', ns)
+            if d.findtext('f:type', namespaces=ns) == 'SHM']
+    frame_bytes = 1280 * 720 * 3
+    assert int(shm.findtext('f:maxMessageSize', namespaces=ns)) > frame_bytes
+    assert int(shm.findtext('f:segment_size', namespaces=ns)) >= 8 * frame_bytes
+    monkeypatch.setenv(params.DDS_PROFILE_VARIABLE, '/somewhere/mine.xml')
+    assert params.dds_environment() == {}
+
+
 def test_run_picture_has_three_panels_of_data(tmp_path: Path) -> None:
     rng = np.random.default_rng(0)
     cloud = rng.uniform(-3, 3, size=(500, 3))

@@ -124,7 +124,8 @@ class Decision:
     What the selector made of one frame.
 
     :param reason: why it is or is not a keyframe: 'first', 'baseline', 'tracks', 'blurred',
-        'degenerate', 'rotating', 'fast', 'lost', 'waiting'.
+        'degenerate', 'rotating', 'fast', 'lost', 'waiting', 'undetected' (would be one, but
+        the detector skipped it).
     :param sharpness_ratio: Laplacian variance / running median (1.0 = typical).
     :param tracked_ratio: corners still tracked / corners detected in the reference.
     :param baseline_ratio: estimated baseline / median depth to the last keyframe, or its
@@ -238,13 +239,17 @@ class KeyframeSelector:
                                          rot_sq=rot_sq)
 
     def update(self, stamp_ns: int, image_bgr: npt.NDArray[np.uint8], camera: CameraModel,
-               target_area: float = 0.0) -> Decision:
+               target_area: float = 0.0, detected: bool = True) -> Decision:
         """
         Decide whether the frame is a keyframe.
 
         :param image_bgr: (H, W, 3) uint8 BGR (or (H, W) grey) image of ``camera``.
         :param camera: intrinsics of this image (distortion allowed).
         :param target_area: largest calibration target's area / image area (0 if none seen).
+        :param detected: whether the target detector looked at this frame. Live, a detector
+            that is behind skips frames; a keyframe without its vertices cannot add the target
+            to the map, so such a frame is passed over ('undetected') for the next detected one
+            unless tracking is running out or the baseline has reached its maximum.
         """
         self._stamp_ns = stamp_ns
         grey = self._grey(image_bgr)
@@ -257,6 +262,9 @@ class KeyframeSelector:
         tracked = n / self._seeded if self._seeded else 0.0
 
         def decide(keyframe: bool, reason: str, ratio: float = float('nan')) -> Decision:
+            if keyframe and not detected and reason in ('first', 'baseline') \
+                    and not ratio >= self.cfg.max_baseline_ratio:
+                keyframe, reason = False, 'undetected'
             after_loss = keyframe and self._lost_since_keyframe
             if keyframe:
                 self._seed(grey)

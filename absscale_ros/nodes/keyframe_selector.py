@@ -69,17 +69,17 @@ class KeyframeSelectorNode(Node):
 
     def _settle(self, result: pairing.Pairing[Image, PointCloud2]) -> None:
         # A frame whose vertices never came (live: the detector skipped it) is still decided
-        # on, without the target's area, so the selector keeps tracking. It is older than the
-        # pairs just made, so it goes first.
+        # on, so the selector keeps tracking, but it becomes a keyframe only when waiting for
+        # a detected one would lose the track. It is older than the pairs just made: first.
         for _, frame in result.dropped_first:
             self.unpaired += 1
-            self._decide(frame, None)
+            self._decide(frame, None, detected=False)
         for _, frame, vertices in result.pairs:
             self._decide(frame, vertices)
         for _, vertices in result.dropped_second:
             self._ack.ack(vertices.header.stamp, self._vert_sub.topic_name)
 
-    def _decide(self, frame: Image, vertices: PointCloud2 | None) -> None:
+    def _decide(self, frame: Image, vertices: PointCloud2 | None, detected: bool = True) -> None:
         outputs: list[str] = []
         try:
             image = conversions.image_msg_to_bgr(frame)
@@ -94,7 +94,7 @@ class KeyframeSelectorNode(Node):
                     np.stack([pts['u'], pts['v']], axis=1), pts['object_id'], w, h)
             t0 = time.perf_counter()
             decision = self._selector.update(conversions.stamp_to_ns(frame.header.stamp), image,
-                                             camera, area)
+                                             camera, area, detected)
             self._times_ms.append(1e3 * (time.perf_counter() - t0))
             self._reasons[decision.reason] += 1
             if decision.keyframe:

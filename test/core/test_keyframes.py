@@ -65,6 +65,23 @@ def test_target_in_view_is_preferred(sequence) -> None:
     assert with_target > without
 
 
+def test_keyframes_wait_for_a_detected_frame(sequence) -> None:
+    """Live, the detector looks at every third frame: keyframes fall only on those."""
+    _, _, frames, camera = sequence
+    every = [d for d in _run(frames, camera) if d.keyframe]
+    selector = keyframes.KeyframeSelector(CFG)
+    decisions = [selector.update(stamp, image, camera, detected=i % 3 == 0)
+                 for i, (stamp, image) in enumerate(frames)]
+    taken = [i for i, d in enumerate(decisions) if d.keyframe]
+    passed_over = [d for d in decisions if d.reason == 'undetected']
+    assert passed_over and len(taken) >= len(every) - 1
+    for i in taken:  # an undetected keyframe only when the track ran low or the band ended
+        assert i % 3 == 0 or decisions[i].reason == 'tracks' \
+            or decisions[i].baseline_ratio >= CFG.max_baseline_ratio, decisions[i]
+    assert max(d.baseline_ratio for d in decisions if d.keyframe and d.reason == 'baseline') \
+        < CFG.max_baseline_ratio
+
+
 def test_tracking_loss_is_reported_and_never_makes_a_keyframe(sequence) -> None:
     _, _, frames, camera = sequence
     selector = keyframes.KeyframeSelector(CFG)

@@ -144,11 +144,17 @@ def test_selector_decides_frames_whose_vertices_never_come(context) -> None:
                       and probe.frames.get_subscription_count() == 2)
     for stamp in (20, 21, 22):  # no vertices for any of them
         probe.frames.publish(_image(320, 240, stamp))
-    # pair_depth 2: the oldest is given up on waiting and decided alone, and it is the first
-    # sharp frame, so it starts the map with an empty vertices cloud.
+    # pair_depth 2: the oldest is given up on waiting and decided alone. It would start the
+    # map, but a keyframe without its vertices cannot add the target: it is passed over.
     assert spin_until(executor, lambda: selector.report()['frames'] == 1)
-    assert selector.report()['unpaired'] == 1 and selector.keyframe_stamps_ns == [20]
-    assert spin_until(executor, lambda: _stamps(probe.got['/absscale/keyframe_vertices']) == [20])
-    assert probe.got['/absscale/keyframe_vertices'][0].width == 0
+    assert selector.report()['unpaired'] == 1 and selector.keyframe_stamps_ns == []
+    assert selector.report()['decisions'] == {'undetected': 1}
     assert spin_until(executor, lambda: [(a.stamp_ns, a.outputs) for a in probe.acks] == [
-        (20, ('/absscale/keyframe_vertices', '/absscale/keyframes'))])
+        (20, ())])
+    # The next frame the detector looked at (nothing seen) starts the map.
+    empty = np.zeros(0, [('u', '<f4'), ('v', '<f4'), ('object_id', '<i4')])
+    probe.vertices.publish(conversions.array_to_cloud_msg(empty, 23, 'cam'))
+    probe.frames.publish(_image(320, 240, 23))
+    assert spin_until(executor, lambda: selector.keyframe_stamps_ns == [23])
+    assert selector.report()['unpaired'] == 3
+    assert spin_until(executor, lambda: _stamps(probe.got['/absscale/keyframe_vertices']) == [23])
