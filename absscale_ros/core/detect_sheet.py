@@ -129,14 +129,26 @@ def refine_quad(image_bgr: npt.NDArray[np.uint8], quad_px: Array, coarse_band_px
     :returns: ((4, 2) corners px, (4,) side supports, (4,) colour steps, (4, 3) BGR colour
         just inside each side, (4, 3) just outside) or None when the sides do not close.
     """
-    centre = quad_px.mean(axis=0)
-    ends = np.stack([quad_px, np.roll(quad_px, -1, axis=0)], axis=1)
-    rough = np.array([lines.line_through(p0, p1, centre) for p0, p1 in ends])
-    n = int(np.clip(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1).mean() / 4.0, 16, 64))
-    out = sides.refine_checked(image_bgr, rough, ends, (coarse_band_px, 4.0, 3.0), n,
-                               FIRST_PASS_SUPPORT)
-    if out is None:
-        return None
+    return _refine_quads(image_bgr, [quad_px], coarse_band_px)[0]
+
+
+def _refine_quads(image_bgr: npt.NDArray[np.uint8], quads_px: list[Array], coarse_band_px: float
+                  ) -> list[sides.Refined | None]:
+    """``refine_quad`` of several quadrilaterals, in one ``sides.refine`` call per pass."""
+    ends = [np.stack([q, np.roll(q, -1, axis=0)], axis=1) for q in quads_px]
+    rough = [np.array([lines.line_through(p0, p1, q.mean(axis=0)) for p0, p1 in e])
+             for q, e in zip(quads_px, ends)]
+    ns = [int(np.clip(np.linalg.norm(e[:, 1] - e[:, 0], axis=1).mean() / 4.0, 16, 64))
+          for e in ends]
+    outs = sides.refine_many(image_bgr, rough, ends, (coarse_band_px, 4.0, 3.0), ns,
+                             FIRST_PASS_SUPPORT)
+    return [None if o is None else _quad_from_sides(q, o, coarse_band_px)
+            for q, o in zip(quads_px, outs)]
+
+
+def _quad_from_sides(quad_px: Array, out: sides.Refined, coarse_band_px: float
+                     ) -> sides.Refined | None:
+    """Return ``refine_quad``'s result from the refined sides ``out``, or None."""
     refined, supports, steps, inside, outside = out
     corners = lines.quad_corners(list(refined))
     if corners is None or not cv2.isContourConvex(corners.astype(np.float32)):
@@ -164,15 +176,15 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
     found: list[Found] = []
     band = max(6.0, 3.0 / scale)
     quads_, regions = sheet_candidates.candidates(work, cfg)
-    for quad in quads_:
-        _accept(image_bgr, (quad + 0.5) / scale - 0.5, band, cfg, K, found)
+    _accept_quads(image_bgr, [(q + 0.5) / scale - 0.5 for q in quads_], band, cfg, K, found)
     if not found and cfg.line_candidates:
-        for quad_full, line_band in _line_candidates(image_bgr, cfg):
-            _accept(image_bgr, quad_full, line_band, cfg, K, found)
+        line_quads = _line_candidates(image_bgr, cfg)
+        if line_quads:
+            _accept_quads(image_bgr, [q for q, _ in line_quads], line_quads[0][1], cfg, K, found)
     if not found and cfg.min_seen < 1.0:
         pents = [(p + 0.5) / scale - 0.5 for p in sheet_candidates.pentagons(regions)]
         _accept_partial(image_bgr, [sheet_partial.hypotheses(p, cfg.min_seen) for p in pents],
-                        lambda hyp: sheet_partial.refine(image_bgr, hyp, band), band, cfg, K,
+                        lambda hyp, out: sheet_partial.finish(hyp, out, band), band, cfg, K,
                         found)
     if not found and cfg.stub_px > 0.0:
         K_ = K if K is not None else _guess_K(cfg.focal_frac, image_bgr.shape)
@@ -180,8 +192,8 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
         groups = [hyps]  # one stub sheet at most: a fallback
         aspect = cfg.model().aspect
         _accept_partial(image_bgr, groups,
-                        lambda hyp: sheet_stub.refine(image_bgr, hyp, band, K_, aspect), band,
-                        cfg, K, found, rough_aspect=False)
+                        lambda hyp, out: sheet_stub.finish(hyp, out, band, K_, aspect), band,
+                        cfg, K, found, rough_aspect=False, checked=sheet_stub.CHECKED)
     found.sort(key=lambda f: -f[0])
     return [_detection(f, cfg.model()) for f in found]
 
@@ -210,52 +222,72 @@ def _line_candidates(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig
 
 # A sheet found: (score, (4, 2) corners, outline of the seen part, (4,) vertex scores or None).
 Found = tuple[float, Array, Array, Array | None]
-Refined = tuple[Array, Array, Array, Array, Array]
+Refined = sides.Refined
 Refined6 = tuple[Array, Array, Array, Array, Array, Array]  # and the seen outline
 
 
 def _accept(image_bgr: npt.NDArray[np.uint8], quad_full: Array, band: float, cfg: SheetConfig,
             K: Array | None, found: list[Found]) -> None:
     """Refine a candidate; append it to ``found`` when it passes every test."""
-    if any(np.hypot(*(quad_full[:, None] - f[1][None]).T).min(axis=0).max() <= band
-           for f in found):
-        return  # another mask's outline of a sheet already found
-    if not _aspect_ok(quad_full, image_bgr.shape, cfg, K, cfg.rough_aspect_tol):
-        return  # rough corners: a looser test here, the exact one after refinement
-    if _tile(image_bgr, quad_full, cfg):
-        return  # cheaper than refining it first
-    refined = refine_quad(image_bgr, quad_full, band)
-    if refined is not None and _big_enough(refined[0], image_bgr.shape, cfg) and \
-            _passes(image_bgr, refined, cfg, K) and \
-            all(np.abs(refined[0] - f[1]).max() > 4.0 for f in found):
-        found.append((float(refined[1].mean()), refined[0], refined[0], None))
+    _accept_quads(image_bgr, [quad_full], band, cfg, K, found)
+
+
+def _accept_quads(image_bgr: npt.NDArray[np.uint8], quads_full: list[Array], band: float,
+                  cfg: SheetConfig, K: Array | None, found: list[Found]) -> None:
+    """
+    Refine candidates (all at once, ``_refine_quads``); append each that passes every test to
+    ``found``, in order.
+    """
+    # Rough corners: a looser aspect test here, the exact one after refinement.
+    quads_full = [q for q in quads_full
+                  if _aspect_ok(q, image_bgr.shape, cfg, K, cfg.rough_aspect_tol)]
+    for quad, refined in zip(quads_full, _refine_quads(image_bgr, quads_full, band)):
+        if refined is None or any(
+                np.hypot(*(quad[:, None] - f[1][None]).T).min(axis=0).max() <= band
+                for f in found):
+            continue  # or another mask's outline of a sheet already found
+        if _tile(image_bgr, quad, cfg) or not _big_enough(refined[0], image_bgr.shape, cfg):
+            continue
+        if _passes(image_bgr, refined, cfg, K) and \
+                all(np.abs(refined[0] - f[1]).max() > 4.0 for f in found):
+            found.append((float(refined[1].mean()), refined[0], refined[0], None))
 
 
 def _accept_partial(image_bgr: npt.NDArray[np.uint8], groups: list[list[sheet_partial.Partial]],
-                    refine: Callable[[sheet_partial.Partial], Refined6 | None], band: float,
-                    cfg: SheetConfig, K: Array | None, found: list[Found],
-                    rough_aspect: bool = True) -> None:
+                    finish: Callable[[sheet_partial.Partial, sides.Refined], Refined6 | None],
+                    band: float, cfg: SheetConfig, K: Array | None, found: list[Found],
+                    rough_aspect: bool = True, checked: npt.NDArray[np.intp] | None = None
+                    ) -> None:
     """
     Try every hidden-corner hypothesis of each group (one seen region); keep the best
     supported per group. ``rough_aspect``: test the aspect of the rough corners and the
-    floor-tile rule before refining (not for stubs, whose rough hidden corner comes from short
-    rough sides; ``_passes`` applies both to the refined corners anyway).
+    floor-tile rule (not for stubs, whose rough hidden corner comes from short rough sides;
+    ``_passes`` applies both to the refined corners anyway). The seen sides of all hypotheses
+    are refined together; ``checked`` are the sides that must pass the first refinement pass
+    (None: all), ``finish`` turns the refined sides into corners (``sheet_partial.finish``).
 
     The extrapolated corner scores half the sheet's support times the smaller seen fraction of
     its two sides; the sheet's score is the mean over its corners.
     """
+    # A corner beyond the border has no occluder to show for the cut (tiles).
+    groups = [[h for h in group
+               if not sheet_candidates.touches_border(h.corners, image_bgr.shape, band)
+               and (not rough_aspect
+                    or _aspect_ok(h.corners, image_bgr.shape, cfg, K, cfg.rough_aspect_tol))]
+              for group in groups]
+    hyps = [h for g in groups for h in g]
+    rough = [sheet_partial.rough_sides(h) for h in hyps]
+    refined = iter(sides.refine_many(image_bgr, [r for r, _ in rough],
+                                     [h.seen_ends for h in hyps], (band, 4.0, 3.0),
+                                     [n for _, n in rough], FIRST_PASS_SUPPORT, checked))
     for group in groups:
         best: tuple[float, Found] | None = None
         for hyp in group:
-            if sheet_candidates.touches_border(hyp.corners, image_bgr.shape, band):
-                continue  # a corner beyond the border: no occluder to show for the cut (tiles)
-            if rough_aspect and \
-                    not _aspect_ok(hyp.corners, image_bgr.shape, cfg, K, cfg.rough_aspect_tol):
-                continue  # rough corners: a looser test here, the exact one after refinement
-            if rough_aspect and _tile(image_bgr, hyp.corners, cfg, hyp.seen_ends):
-                continue  # (a stub's refinement gives up early, cheaper than this test)
-            out = refine(hyp)
-            if out is None or not _big_enough(out[5], image_bgr.shape, cfg) or \
+            sides_out = next(refined)
+            out = None if sides_out is None else finish(hyp, sides_out)
+            if out is None or \
+                    (rough_aspect and _tile(image_bgr, hyp.corners, cfg, hyp.seen_ends)) or \
+                    not _big_enough(out[5], image_bgr.shape, cfg) or \
                     not _passes(image_bgr, out[:5], cfg, K, hyp.seen_ends) or \
                     not _covered(image_bgr, out[0][3], out[3], cfg):
                 continue

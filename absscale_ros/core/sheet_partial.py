@@ -93,8 +93,12 @@ def refine(image_bgr: npt.NDArray[np.uint8], hyp: Partial, band_px: float
     rough, n = rough_sides(hyp)
     out = sides.refine_checked(image_bgr, rough, hyp.seen_ends, (band_px, 4.0, 3.0), n,
                                FIRST_PASS_SUPPORT)
-    if out is None:
-        return None
+    return None if out is None else finish(hyp, out, band_px)
+
+
+def finish(hyp: Partial, out: sides.Refined, band_px: float
+           ) -> tuple[Array, Array, Array, Array, Array, Array] | None:
+    """``refine`` after the sides' refinement ``out`` (``sides.refine_checked``)."""
     refined, supports, steps, inside, outside = out
     corners = lines.quad_corners(list(refined))
     if corners is None or not cv2.isContourConvex(corners.astype(np.float32)):

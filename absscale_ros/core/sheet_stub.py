@@ -26,6 +26,9 @@ STUB_MIN_SUPPORT = 0.99  # every profile of the stub must find its edge on the f
 OCCLUDER_DEPTH = 0.1  # of the shorter hidden side: how far inside an occluder's edge must cut
 SHORT_EDGE = 0.25  # polygon edges shorter than this fraction of a side are a blunted corner
 FIRST_PASS_SUPPORT = 0.25  # a seen side less supported after the widest pass: not a sheet
+# Sides checked after that pass: not the stub (2), whose wide profiles near the corner still
+# catch the whole side's edge.
+CHECKED = np.array([0, 1, 3])
 
 
 def _cross(a: Array, b: Array) -> Array:
@@ -233,12 +236,14 @@ def refine(image_bgr: npt.NDArray[np.uint8], hyp: sheet_partial.Partial, band_px
         (4, 3) outside colours, (5, 2) outline of the seen part) or None.
     """
     rough, n = sheet_partial.rough_sides(hyp)
-    # (the stub is not checked after the widest pass: its wide profiles near the corner
-    # still catch the whole side's edge)
     out = sides.refine_checked(image_bgr, rough, hyp.seen_ends, (band_px, 4.0, 3.0), n,
-                               FIRST_PASS_SUPPORT, np.array([0, 1, 3]))
-    if out is None:
-        return None
+                               FIRST_PASS_SUPPORT, CHECKED)
+    return None if out is None else finish(hyp, out, band_px, K, aspect)
+
+
+def finish(hyp: sheet_partial.Partial, out: sides.Refined, band_px: float, K: Array,
+           aspect: float) -> tuple[Array, Array, Array, Array, Array, Array] | None:
+    """``refine`` after the sides' refinement ``out`` (``sides.refine_checked``)."""
     ls, supports, steps, inside, outside = out
     seen = [lines.intersect(ls[a], ls[b]) for a, b in ((3, 0), (0, 1), (1, 2))]
     if any(c is None for c in seen):

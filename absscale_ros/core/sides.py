@@ -29,33 +29,49 @@ def _project_ends(lines_: Array, ends: Array) -> Array:
 
 
 def _profiles(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array, band_px: float,
-              n: int) -> tuple[Array, Array, Array]:
+              ns: npt.NDArray[np.int64]) -> tuple[Array, Array, Array]:
     """
-    Sample colour profiles across every side.
+    Sample colour profiles across every side, ``ns`` (S,) of them on each (N = the most; a
+    side with fewer repeats its last profile: ``_valid`` tells them apart).
 
-    :returns: ((S, n, 2) profile centres on the lines, (K,) offsets along the normals,
-        (S, n, K, 3) float32 BGR samples).
+    :returns: ((S, N, 2) profile centres on the lines, (K,) offsets along the normals,
+        (S, N, K, 3) float32 BGR samples).
     """
     q = _project_ends(lines_, ends)
-    ts = MARGIN + (1.0 - 2.0 * MARGIN) * (np.arange(n) + 0.5) / n
-    centres = q[:, None, 0, :] + ts[None, :, None] * (q[:, 1, :] - q[:, 0, :])[:, None, :]
+    j = np.minimum(np.arange(ns.max())[None, :], ns[:, None] - 1)
+    ts = MARGIN + (1.0 - 2.0 * MARGIN) * (j + 0.5) / ns[:, None]
+    centres = q[:, None, 0, :] + ts[:, :, None] * (q[:, 1, :] - q[:, 0, :])[:, None, :]
     offs = np.arange(-band_px, band_px + 1e-9, STEP_PX)
     xy = centres[:, :, None, :] + offs[None, None, :, None] * lines_[:, None, None, :2]
-    s, k = len(lines_), len(offs)
+    s, n, k = len(lines_), centres.shape[1], len(offs)
     samples = cv2.remap(image_bgr, xy[..., 0].reshape(s * n, k).astype(np.float32),
                         xy[..., 1].reshape(s * n, k).astype(np.float32), cv2.INTER_LINEAR,
                         borderMode=cv2.BORDER_REPLICATE)
     return centres, offs, samples.reshape(s, n, k, 3).astype(np.float32)
 
 
-def side_colours(samples: Array) -> tuple[Array, Array]:
+def _valid(ns: npt.NDArray[np.int64]) -> npt.NDArray[np.bool_]:
+    """Return (S, N) True for the profiles each side really has (``_profiles``)."""
+    return np.arange(ns.max())[None, :] < ns[:, None]
+
+
+def side_colours(samples: Array, ns: npt.NDArray[np.int64] | None = None
+                 ) -> tuple[Array, Array]:
     """
     Return (S, 3) inside and (S, 3) outside BGR colour of each side: per-channel medians over
     the middle 60% of the profiles, of the first and the last sample (the band's two ends).
+
+    :param ns: (S,) profiles of each side (default: all ``samples.shape[1]``).
     """
-    n = samples.shape[1]
-    mid = samples[:, int(0.2 * n):max(int(0.8 * n), int(0.2 * n) + 1)]
-    return np.median(mid[:, :, 0, :], axis=1), np.median(mid[:, :, -1, :], axis=1)
+    if ns is None:
+        ns = np.full(len(samples), samples.shape[1])
+    inside, outside = np.zeros((len(samples), 3)), np.zeros((len(samples), 3))
+    for n in np.unique(ns):  # one slice per profile count: usually one
+        idx = np.flatnonzero(ns == n)
+        mid = samples[idx, int(0.2 * n):max(int(0.8 * n), int(0.2 * n) + 1)]
+        inside[idx] = np.median(mid[:, :, 0, :], axis=1)
+        outside[idx] = np.median(mid[:, :, -1, :], axis=1)
+    return inside, outside
 
 
 def _edges(samples: Array, step: Array, centres: Array, offs: Array, normals: Array
@@ -107,7 +123,8 @@ def fit_lines(pts: Array, weights: Array, outward: Array, scale_px: Array,
 
 
 def refine(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
-           bands_px: tuple[float, ...], n: int, min_rel_strength: float = 0.3,
+           bands_px: tuple[float, ...], n: int | npt.NDArray[np.int64],
+           min_rel_strength: float = 0.3,
            colours: tuple[Array, Array] | None = None
            ) -> tuple[Array, Array, Array, Array, Array]:
     """
@@ -117,7 +134,8 @@ def refine(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
     :param ends: (S, 2, 2) rough side ends px (projected onto the lines).
     :param bands_px: half-widths of the search band, one pass each (the colour step of each
         side is measured in the first, widest one).
-    :param n: profiles per side.
+    :param n: profiles per side, or (S,) one count per side (several candidates in one call:
+        each side gets what it would get alone).
     :param colours: (S, 3) inside and outside colours measured before (by an earlier pass),
         instead of measuring them in the first band.
     :returns: ((S, 3) refined lines, (S,) support: fraction of profiles whose edge is at least
@@ -126,16 +144,19 @@ def refine(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
         (S, 3) BGR colour just inside each side, (S, 3) just outside).
     """
     lines_ = lines_.copy()
+    ns = np.broadcast_to(np.asarray(n, dtype=np.int64), (len(lines_),))
+    valid = _valid(ns)
     length = np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1)
     tol = np.maximum(1.0, 0.005 * length)
     step = inside = outside = np.zeros((len(lines_), 3))
     support = np.zeros(len(lines_))
     for i, band in enumerate(bands_px):
-        centres, offs, samples = _profiles(image_bgr, lines_, ends, band, n)
+        centres, offs, samples = _profiles(image_bgr, lines_, ends, band, ns)
         if i == 0:
-            inside, outside = side_colours(samples) if colours is None else colours
+            inside, outside = side_colours(samples, ns) if colours is None else colours
             step = inside - outside
         pts, strength = _edges(samples, step, centres, offs, lines_[:, :2])
+        strength = np.where(valid, strength, 0.0)
         med = np.median(np.where(strength > 0, strength, np.nan), axis=1)
         keep = (strength > 0) & (strength >= min_rel_strength * np.nan_to_num(med)[:, None])
         usable = keep.sum(axis=1) >= 3
@@ -143,7 +164,7 @@ def refine(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
                            np.full(len(lines_), max(0.5, band / 4.0)))
         lines_[usable] = fitted[usable]
         near = np.abs(np.einsum('snk,sk->sn', pts, lines_[:, :2]) + lines_[:, None, 2])
-        support = np.where(usable, (keep & (near < tol[:, None])).sum(axis=1) / n, 0.0)
+        support = np.where(usable, (keep & (near < tol[:, None])).sum(axis=1) / ns, 0.0)
     return lines_, support, np.linalg.norm(step, axis=1), inside, outside
 
 
@@ -163,7 +184,8 @@ def ridge_ratio(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array, ba
         returned (a blurred grout line is wider than the first reach).
     """
     top = max(reaches)
-    _, offs, samples = _profiles(image_bgr, lines_, ends, top * band_px, n)
+    _, offs, samples = _profiles(image_bgr, lines_, ends, top * band_px,
+                                 np.full(len(lines_), n))
     prof = np.median(samples, axis=1)  # (S, K, 3)
     out = np.zeros(len(lines_))
     for r in reaches:
@@ -178,19 +200,54 @@ def ridge_ratio(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array, ba
     return out
 
 
+Refined = tuple[Array, Array, Array, Array, Array]
+
+
 def refine_checked(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
                    bands_px: tuple[float, ...], n: int, min_first_support: float | Array,
-                   checked: npt.NDArray[np.intp] | None = None
-                   ) -> tuple[Array, Array, Array, Array, Array] | None:
+                   checked: npt.NDArray[np.intp] | None = None) -> Refined | None:
     """
     ``refine``, but give up after the first (widest) pass when a side in ``checked`` (default
     all) is supported less than ``min_first_support`` (one value, or one per checked side):
     most candidates are not the object, and the finer passes cost twice the first.
     """
-    first = refine(image_bgr, lines_, ends, bands_px[:1], n)
-    support = first[1] if checked is None else first[1][checked]
-    if (support < min_first_support).any():
-        return None
-    if len(bands_px) == 1:
-        return first
-    return refine(image_bgr, first[0], ends, bands_px[1:], n, colours=(first[3], first[4]))
+    return refine_many(image_bgr, [lines_], [ends], bands_px, [n], min_first_support,
+                       checked)[0]
+
+
+def refine_many(image_bgr: npt.NDArray[np.uint8], lines_: list[Array], ends: list[Array],
+                bands_px: tuple[float, ...], ns: list[int], min_first_support: float | Array,
+                checked: npt.NDArray[np.intp] | None = None) -> list[Refined | None]:
+    """
+    ``refine_checked`` of several candidates (each its (S_c, 3) lines, (S_c, 2, 2) ends and
+    profile count) in one ``refine`` call per pass, with the same results: a call costs about
+    a millisecond of numpy overhead whatever the number of sides.
+    """
+    if not lines_:
+        return []
+    sizes = [len(ls) for ls in lines_]
+    starts = np.cumsum([0] + sizes)
+    side_ns = np.repeat(np.asarray(ns, dtype=np.int64), sizes)
+    all_ends = np.concatenate(ends)
+    first = refine(image_bgr, np.concatenate(lines_), all_ends, bands_px[:1], side_ns)
+
+    def part(res: tuple[Array, ...], c: int, at: npt.NDArray[np.int64]) -> Refined:
+        a, b = at[c], at[c + 1]
+        return res[0][a:b], res[1][a:b], res[2][a:b], res[3][a:b], res[4][a:b]
+    keep = []
+    for c in range(len(lines_)):
+        sup = part(first, c, starts)[1]
+        keep.append(bool(((sup if checked is None else sup[checked])
+                          >= min_first_support).all()))
+    out: list[Refined | None] = [part(first, c, starts) if k else None
+                                 for c, k in enumerate(keep)]
+    idx = [c for c, k in enumerate(keep) if k]
+    if len(bands_px) == 1 or not idx:
+        return out
+    rows = np.concatenate([np.arange(starts[c], starts[c + 1]) for c in idx])
+    second = refine(image_bgr, first[0][rows], all_ends[rows], bands_px[1:], side_ns[rows],
+                    colours=(first[3][rows], first[4][rows]))
+    at = np.cumsum([0] + [sizes[c] for c in idx])
+    for j, c in enumerate(idx):
+        out[c] = part(second, j, at)
+    return out

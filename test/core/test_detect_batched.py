@@ -1,0 +1,39 @@
+"""The detectors' batched steps give what their one-candidate versions give, on rendered frames."""
+from pathlib import Path
+import sys
+
+import numpy as np
+
+from absscale_ros.core import lines, sides
+
+sys.path.insert(0, str(Path(__file__).parent))
+import synth_targets as st  # noqa: E402
+
+
+def _quad_sides(quad, shift_px):
+    """Rough (4, 3) lines and (4, 2, 2) ends of a quad pushed ``shift_px`` off its outline."""
+    centre = quad.mean(axis=0)
+    rough = np.array([lines.line_through(a, b, centre) for a, b in
+                      zip(quad, np.roll(quad, -1, axis=0))])
+    rough[:, 2] -= shift_px
+    ends = np.stack([quad, np.roll(quad, -1, axis=0)], axis=1)
+    return rough, ends
+
+
+def test_refine_many_equals_one_call_per_candidate():
+    true_px = st.project_sheet((0.4, -0.2, 0.3), (0.0, 0.0, 1.0))
+    img = st.render_sheet(np.random.default_rng(3), true_px, blur_px=3)
+    # The sheet with two profile counts, and a quad of empty desk that fails the first pass.
+    empty = np.array([[40.0, 40.0], [200.0, 40.0], [200.0, 150.0], [40.0, 150.0]])
+    cands = [_quad_sides(true_px, 2.5), _quad_sides(true_px, -1.5), _quad_sides(empty, 0.0)]
+    ns = [16, 37, 20]
+    batched = sides.refine_many(img, [c[0] for c in cands], [c[1] for c in cands],
+                                (8.0, 4.0, 3.0), ns, 0.25)
+    assert batched[2] is None and batched[0] is not None and batched[1] is not None
+    for (rough, ends), n, got in zip(cands, ns, batched):
+        alone = sides.refine_checked(img, rough, ends, (8.0, 4.0, 3.0), n, 0.25)
+        assert (alone is None) == (got is None)
+        for a, b in zip(alone or (), got or ()):
+            np.testing.assert_allclose(a, b, atol=1e-9)
+    corners = lines.quad_corners(list(batched[1][0]))
+    assert np.abs(corners - true_px).max() < 0.5  # and right: the refined sheet's corners
