@@ -110,8 +110,13 @@ def candidates(work_bgr: npt.NDArray[np.uint8], cfg: 'SheetConfig'
             white = plausible(work_bgr, c, cfg)
             if white is None:
                 continue
-            regions.append((c, grow))
-            whites.append(white)
+            x, y, w, h = cv2.boundingRect(c)
+            if min(x, y) > 1 and x + w < work_white.shape[1] - 1 and \
+                    y + h < work_white.shape[0] - 1:
+                # A region the border cuts has a side along it with no edge to refine: not for
+                # the hidden-corner paths (their hypotheses fail or are refused there).
+                regions.append((c, grow))
+                whites.append(white)
             quad = lines.rough_quad(c) if solidity >= cfg.min_solidity else None
             quad = None if quad is None else offset(quad, grow)
             if quad is None or touches_border(quad, work_white.shape):
