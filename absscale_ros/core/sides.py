@@ -55,6 +55,19 @@ def _valid(ns: npt.NDArray[np.int64]) -> npt.NDArray[np.bool_]:
     return np.arange(ns.max())[None, :] < ns[:, None]
 
 
+def _median_strength(strength: Array, ns: npt.NDArray[np.int64]) -> Array:
+    """
+    Return (S,) the median over each side's own profiles of its edge strengths, NaN when a
+    profile has no edge (as ``np.median`` gives it: ``refine`` then keeps every edge).
+    """
+    out = np.zeros(len(strength))
+    for n in np.unique(ns):  # one median per profile count: usually one
+        idx = np.flatnonzero(ns == n)
+        s = strength[idx, :n]
+        out[idx] = np.median(np.where(s > 0, s, np.nan), axis=1)
+    return out
+
+
 def side_colours(samples: Array, ns: npt.NDArray[np.int64] | None = None
                  ) -> tuple[Array, Array]:
     """
@@ -157,7 +170,7 @@ def refine(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
             step = inside - outside
         pts, strength = _edges(samples, step, centres, offs, lines_[:, :2])
         strength = np.where(valid, strength, 0.0)
-        med = np.median(np.where(strength > 0, strength, np.nan), axis=1)
+        med = _median_strength(strength, ns)
         keep = (strength > 0) & (strength >= min_rel_strength * np.nan_to_num(med)[:, None])
         usable = keep.sum(axis=1) >= 3
         fitted = fit_lines(pts, np.where(keep, strength, 0.0), lines_[:, :2],
