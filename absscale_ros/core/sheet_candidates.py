@@ -107,22 +107,27 @@ def candidates(work_bgr: npt.NDArray[np.uint8], cfg: 'SheetConfig'
             solidity = region_shape(c, min_area, cfg)
             if solidity < PENT_MIN_SOLIDITY:
                 continue  # too small, too round or too long, or far from convex
+            # A region the border cuts has a side along it with no edge to refine: not for the
+            # hidden-corner paths (their hypotheses fail or are refused there).
+            x, y, w, h = cv2.boundingRect(c)
+            inner = min(x, y) > 1 and x + w < work_white.shape[1] - 1 and \
+                y + h < work_white.shape[0] - 1
+            quad = lines.rough_quad(c) if solidity >= cfg.min_solidity else None
+            quad = None if quad is None else offset(quad, grow)
+            # A sheet cut by the image border has no trustworthy corners, and another mask's
+            # outline of a quad already kept is not tested again.
+            new = quad is not None and not touches_border(quad, work_white.shape) and \
+                all(np.abs(quad - q).max() > 2.0 for q in quads)
+            if not (inner or new):
+                continue  # nothing to use it for: spare the plausibility test
             white = plausible(work_bgr, c, cfg)
             if white is None:
                 continue
-            x, y, w, h = cv2.boundingRect(c)
-            if min(x, y) > 1 and x + w < work_white.shape[1] - 1 and \
-                    y + h < work_white.shape[0] - 1:
-                # A region the border cuts has a side along it with no edge to refine: not for
-                # the hidden-corner paths (their hypotheses fail or are refused there).
+            if inner:
                 regions.append((c, grow))
                 whites.append(white)
-            quad = lines.rough_quad(c) if solidity >= cfg.min_solidity else None
-            quad = None if quad is None else offset(quad, grow)
-            if quad is None or touches_border(quad, work_white.shape):
-                continue  # a sheet cut by the image border has no trustworthy corners
-            if all(np.abs(quad - q).max() > 2.0 for q in quads):
-                quads.append(quad)  # another mask's outline of it is not tested again
+            if new and quad is not None:
+                quads.append(quad)
     order = np.argsort(-np.array(whites), kind='stable')
     return quads, [regions[i] for i in order]  # whitest first: where a sheet is likeliest
 
