@@ -122,6 +122,27 @@ def colour_mask(hsv: npt.NDArray[np.uint8], hue_deg: tuple[float, float], cfg: C
     return a | cv2.inRange(hsv, (0, s_lo, v_lo), (int(hi_h), 255, 255))
 
 
+def colour_masks(hsv: npt.NDArray[np.uint8], cfg: CubeConfig
+                 ) -> dict[str, npt.NDArray[np.uint8]]:
+    """
+    Return ``colour_mask`` of every cube colour: one saturation-value test and one hue
+    look-up table for all of them (a third of the CPU of three ``inRange`` on HSV).
+    """
+    lut = np.zeros(256, np.uint8)
+    for bit, hue in enumerate(cfg.hue_ranges().values()):
+        lo_h, hi_h = int(np.ceil(hue[0] / 2.0)), int(hue[1] / 2.0)  # OpenCV stores hue / 2
+        if lo_h <= hue[1] / 2.0 and hue[0] <= hue[1]:
+            lut[lo_h:hi_h + 1] |= 1 << bit
+        elif hue[0] > hue[1]:
+            lut[lo_h:181] |= 1 << bit
+            lut[:hi_h + 1] |= 1 << bit
+    s_lo, v_lo = int(round(cfg.sat_min * 255)), int(round(cfg.val_min * 255))
+    label = cv2.bitwise_and(cv2.LUT(cv2.extractChannel(hsv, 0), lut),
+                            cv2.inRange(hsv, (0, s_lo, v_lo), (255, 255, 255)))
+    return {c: cv2.compare(cv2.bitwise_and(label, 1 << bit), 0, cv2.CMP_GT)
+            for bit, c in enumerate(cfg.hue_ranges())}
+
+
 def _face_quads(mask: npt.NDArray[np.uint8], cfg: CubeConfig, scale: float = 1.0
                 ) -> list[tuple[Array, npt.NDArray[np.int32]]]:
     """Return (rough quad, contour) of mask components that pass the paper's tests."""
@@ -214,8 +235,8 @@ def detect_faces(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig) -> list[Face
                       interpolation=cv2.INTER_AREA)
     hsv = cv2.cvtColor(work, cv2.COLOR_BGR2HSV)
     rough = []
-    for colour, hue in cfg.hue_ranges().items():
-        for quad, contour in _face_quads(colour_mask(hsv, hue, cfg), cfg, scale):
+    for colour, mask in colour_masks(hsv, cfg).items():
+        for quad, contour in _face_quads(mask, cfg, scale):
             quad_full = (quad + 0.5) / scale - 0.5
             contour_full = (contour.reshape(-1, 2).astype(np.float64) + 0.5) / scale - 0.5
             rough.append((colour, np.array(_hough_sides(quad_full, contour_full, cfg)),
@@ -231,7 +252,7 @@ def _strips(image_bgr: npt.NDArray[np.uint8], faces: list[Face], cfg: CubeConfig
 
     def masks_of(bgr: npt.NDArray[np.uint8]) -> dict[str, npt.NDArray[np.bool_]]:
         hsv = cv2.cvtColor(bgr, cv2.COLOR_BGR2HSV)
-        return {c: colour_mask(hsv, hue, cfg) > 0 for c, hue in cfg.hue_ranges().items()}
+        return {c: m > 0 for c, m in colour_masks(hsv, cfg).items()}
     out = []
     for colour, corners, support, runs_on in cube_strips.strip_faces(
             image_bgr, [f.corners_px for f in faces], [f.colour for f in faces], masks_of,

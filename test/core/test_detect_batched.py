@@ -2,9 +2,10 @@
 from pathlib import Path
 import sys
 
+import cv2
 import numpy as np
 
-from absscale_ros.core import lines, sides
+from absscale_ros.core import detect_cube, lines, sides
 
 sys.path.insert(0, str(Path(__file__).parent))
 import synth_targets as st  # noqa: E402
@@ -37,3 +38,15 @@ def test_refine_many_equals_one_call_per_candidate():
             np.testing.assert_allclose(a, b, atol=1e-9)
     corners = lines.quad_corners(list(batched[1][0]))
     assert np.abs(corners - true_px).max() < 0.5  # and right: the refined sheet's corners
+
+
+def test_colour_masks_equal_one_mask_per_colour():
+    R, t = st.cube_pose(30.0, 20.0, 5.0)
+    img = st.render_cube(np.random.default_rng(2), R, t)[0]
+    hsv = cv2.cvtColor(img, cv2.COLOR_BGR2HSV)
+    cfg = detect_cube.CubeConfig()
+    masks = detect_cube.colour_masks(hsv, cfg)
+    for colour, hue in cfg.hue_ranges().items():
+        one = detect_cube.colour_mask(hsv, hue, cfg)
+        assert np.count_nonzero(one) > 1000  # every face is seen
+        np.testing.assert_array_equal(masks[colour], one)
