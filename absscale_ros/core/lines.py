@@ -6,6 +6,8 @@ A line is a (3,) float64 array ``(a, b, c)`` with ``a**2 + b**2 == 1`` and ``a*u
 for image points ``(u, v)`` in px (OpenCV convention: pixel i's centre at i). Its normal
 ``(a, b)`` points out of the region being outlined (the sheet or the cube face).
 """
+import math
+
 import cv2
 import numpy as np
 import numpy.typing as npt
@@ -15,12 +17,14 @@ Array = npt.NDArray[np.float64]
 
 def line_through(p0: Array, p1: Array, inside: Array) -> Array:
     """Return the line through ``p0``, ``p1`` whose normal points away from ``inside``."""
-    d = p1 - p0
-    n = np.array([d[1], -d[0]]) / max(float(np.hypot(*d)), 1e-12)
-    c = -float(n @ p0)
-    if n @ inside + c > 0.0:
-        n, c = -n, -c
-    return np.array([n[0], n[1], c])
+    # Scalar arithmetic: called thousands of times per frame on single points.
+    dx, dy = float(p1[0]) - float(p0[0]), float(p1[1]) - float(p0[1])
+    norm = max(math.hypot(dx, dy), 1e-12)
+    a, b = dy / norm, -dx / norm
+    c = -(a * float(p0[0]) + b * float(p0[1]))
+    if a * float(inside[0]) + b * float(inside[1]) + c > 0.0:
+        a, b, c = -a, -b, -c
+    return np.array([a, b, c])
 
 
 def intersect(l1: Array, l2: Array) -> Array | None:
@@ -92,6 +96,12 @@ def hough_line(points_px: Array, theta0_rad: float, rho0_px: float, theta_res_de
     return float(thetas[j]), rho0_px + (k + 1 - half) * rho_res_px
 
 
+def cross3(a: Array, b: Array) -> Array:
+    """Return the cross product of two 3-vectors (``np.cross`` is slow on single vectors)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
+                     a[0] * b[1] - a[1] * b[0]])
+
+
 def quad_corners(lines: list[Array]) -> Array | None:
     """Return the (4, 2) corners of four cyclically ordered side lines, or None."""
     corners = []
@@ -113,8 +123,9 @@ def rectangle_aspect(corners_px: Array, K: Array | None, focal_px: float,
     parallel to tell; with the intrinsics the homography gives the side ratio.
     """
     m = np.hstack([corners_px[[0, 1, 3, 2]], np.ones((4, 1))])  # m1 (0,0) m2 (w,0) m3 (0,h)
-    k2 = np.cross(m[0], m[3]) @ m[2] / (np.cross(m[1], m[3]) @ m[2])
-    k3 = np.cross(m[0], m[3]) @ m[1] / (np.cross(m[2], m[3]) @ m[1])
+    c03 = cross3(m[0], m[3])
+    k2 = c03 @ m[2] / (cross3(m[1], m[3]) @ m[2])
+    k3 = c03 @ m[1] / (cross3(m[2], m[3]) @ m[1])
     n2, n3 = k2 * m[1] - m[0], k3 * m[2] - m[0]
     if K is None:
         u0, v0 = centre_px
