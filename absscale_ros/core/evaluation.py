@@ -3,12 +3,13 @@ Accuracy of a metric reconstruction against simulator ground truth (the paper's 
 
 A reconstructed landmark's true point is found without any alignment: project it into a
 keyframe with that keyframe's reconstructed pose, and take the ground-truth surface point
-behind that pixel (the simulator re-renders it). Two keyframes must agree, which rejects
-landmarks hidden in one of them. Lengths between landmarks then compare with lengths between
+behind that pixel (the simulator re-renders it). Several keyframes must agree, which rejects
+landmarks hidden in one of them, and their median damps each one's reprojection error. Lengths between landmarks then compare with lengths between
 their true points, in mm per metre.
 """
 from dataclasses import dataclass
 from typing import Callable
+import warnings
 
 import numpy as np
 import numpy.typing as npt
@@ -43,35 +44,46 @@ def project(points: FloatArray, pose_xyzw: FloatArray, camera: CameraModel) -> F
 
 
 def landmark_truth(points_m: FloatArray, poses_m: FloatArray, frame_of_pose: list[int],
-                   camera: CameraModel, truth: TruthFn, agree_m: float = 0.01) -> FloatArray:
+                   camera: CameraModel, truth: TruthFn, views: int = 4,
+                   agree_m: float = 0.01) -> FloatArray:
     """
-    (N, 3) true world point of each landmark, NaN where two keyframes do not agree.
+    (N, 3) true world point of each landmark, NaN where the keyframes do not agree.
+
+    The truth must be finer than the errors it measures (Table 3 asks for 1 mm/m): each
+    keyframe's hit carries the landmark's reprojection error along the surface, so up to
+    ``views`` keyframes are asked, their median is the truth, and every hit must lie within
+    ``agree_m`` of it (at least two hits). A landmark hidden in one keyframe fails that.
+    (Two views and the first hit, as before, read 10.1 and 8.4 mm/m on indoor seeds 42 and
+    43 where four views read 7.6 and 5.5: the truth's own noise was a third of the figure.)
 
     :param points_m: (N, 3) metric landmarks (reconstruction frame).
     :param poses_m: (K, 7) metric keyframe poses in the same frame.
     :param frame_of_pose: ground-truth frame index of each keyframe.
     """
     n = len(points_m)
-    found = np.full((n, 2, 3), np.nan)
+    found = np.full((n, views, 3), np.nan)
     have = np.zeros(n, int)
     margin = 2.0
     for k in np.argsort(-np.arange(len(poses_m))):  # latest keyframes first: densest map
         px = project(points_m, poses_m[k], camera)
         inside = np.isfinite(px).all(axis=1) & (px[:, 0] >= margin) & (px[:, 1] >= margin) \
             & (px[:, 0] <= camera.width - 1 - margin) & (px[:, 1] <= camera.height - 1 - margin)
-        todo = np.flatnonzero(inside & (have < 2))
+        todo = np.flatnonzero(inside & (have < views))
         if not len(todo):
             continue
         hits = truth(frame_of_pose[k], px[todo])
         ok = np.isfinite(hits).all(axis=1)
-        for i, hit in zip(todo[ok], hits[ok]):
-            found[i, have[i]] = hit
-            have[i] += 1
-        if (have >= 2).all():
+        found[todo[ok], have[todo[ok]]] = hits[ok]
+        have[todo[ok]] += 1
+        if (have >= views).all():
             break
-    agree = (have == 2) & (np.linalg.norm(found[:, 0] - found[:, 1], axis=1) <= agree_m)
+    with np.errstate(invalid='ignore'), warnings.catch_warnings():
+        warnings.simplefilter('ignore', RuntimeWarning)  # all-NaN rows: no hit at all
+        median = np.nanmedian(found, axis=1)
+        spread = np.nanmax(np.linalg.norm(found - median[:, None], axis=2), axis=1)
+    agree = (have >= 2) & (spread <= agree_m)
     result = np.full((n, 3), np.nan)
-    result[agree] = found[agree, 0]
+    result[agree] = median[agree]
     return result
 
 

@@ -39,3 +39,26 @@ def test_true_scale_of_a_trajectory() -> None:
     R = Rotation.from_rotvec([0.1, 0.2, 0.3]).as_matrix()
     unscaled = (gt @ R) / 0.37 + 5.0
     assert evaluation.true_scale(unscaled, gt) == pytest.approx(0.37)
+
+
+def test_truth_is_the_median_of_agreeing_keyframes_and_rejects_a_hidden_landmark() -> None:
+    rng = np.random.default_rng(2)
+    poses = np.array([[x, 0.0, 0.0, 0, 0, 0, 1] for x in (0.0, 0.3, 0.6, 0.9, 1.2)])
+    pts = np.column_stack([rng.uniform(-2, 2, 300), rng.uniform(-1.5, 1.5, 300),
+                           np.full(300, 10.)])
+    wall = _wall_truth(poses)
+
+    def noisy(frame: int, px: np.ndarray) -> np.ndarray:  # each view's hit is off by ~1 mm
+        hits = wall(frame, px) + rng.normal(scale=0.001, size=(len(px), 3))
+        if frame == 4:
+            hits[:10, 2] -= 0.5  # the first ten are hidden behind something in keyframe 4
+        return hits
+
+    one = evaluation.landmark_truth(pts, poses, [0, 1, 2, 3, 4], CAM, noisy, views=2,
+                                    agree_m=0.01)
+    four = evaluation.landmark_truth(pts, poses, [0, 1, 2, 3, 4], CAM, noisy)
+    ok = np.isfinite(four).all(axis=1)
+    assert ok.sum() > 200 and not ok[:10].any()  # hidden in one of its views: no truth
+    err_one = np.linalg.norm(one - pts, axis=1)
+    err_four = np.linalg.norm(four - pts, axis=1)
+    assert np.nanmedian(err_four[ok]) < 0.8 * np.nanmedian(err_one[ok])
