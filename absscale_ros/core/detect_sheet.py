@@ -23,6 +23,8 @@ from absscale_ros.core import (lines, quads, sheet_candidates, sheet_partial, sh
 
 Array = npt.NDArray[np.float64]
 FIRST_PASS_SUPPORT = 0.25  # a side less supported after the widest refinement pass: no sheet
+# Refinement bands after the widest, px: one fine pass is as exact as two on the tuning bags.
+FINE_BANDS = (3.0,)
 STUB_MAX_HYPS = 8  # stub hypotheses refined per frame at most (whitest, longest sides first)
 
 
@@ -140,7 +142,7 @@ def _refine_quads(image_bgr: npt.NDArray[np.uint8], quads_px: list[Array], coars
              for q, e in zip(quads_px, ends)]
     ns = [int(np.clip(np.linalg.norm(e[:, 1] - e[:, 0], axis=1).mean() / 4.0, 16, 64))
           for e in ends]
-    outs = sides.refine_many(image_bgr, rough, ends, (coarse_band_px, 4.0, 3.0), ns,
+    outs = sides.refine_many(image_bgr, rough, ends, (coarse_band_px,) + FINE_BANDS, ns,
                              FIRST_PASS_SUPPORT)
     return [None if o is None else _quad_from_sides(q, o, coarse_band_px)
             for q, o in zip(quads_px, outs)]
@@ -193,7 +195,8 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
         aspect = cfg.model().aspect
         _accept_partial(image_bgr, groups,
                         lambda hyp, out: sheet_stub.finish(hyp, out, band, K_, aspect), band,
-                        cfg, K, found, rough_aspect=False, checked=sheet_stub.CHECKED)
+                        cfg, K, found, rough_aspect=False, checked=sheet_stub.CHECKED,
+                        fine_bands=sheet_stub.FINE_BANDS)
     found.sort(key=lambda f: -f[0])
     return [_detection(f, cfg.model()) for f in found]
 
@@ -246,9 +249,10 @@ def _accept_quads(image_bgr: npt.NDArray[np.uint8], quads_full: list[Array], ban
                 np.hypot(*(quad[:, None] - f[1][None]).T).min(axis=0).max() <= band
                 for f in found):
             continue  # or another mask's outline of a sheet already found
-        if _tile(image_bgr, quad, cfg) or not _big_enough(refined[0], image_bgr.shape, cfg):
-            continue
-        if _passes(image_bgr, refined, cfg, K) and \
+        # (``_passes`` applies the floor-tile test to the refined corners: refining every
+        # candidate together costs less than testing the rough ones first)
+        if _big_enough(refined[0], image_bgr.shape, cfg) and \
+                _passes(image_bgr, refined, cfg, K) and \
                 all(np.abs(refined[0] - f[1]).max() > 4.0 for f in found):
             found.append((float(refined[1].mean()), refined[0], refined[0], None))
 
@@ -256,15 +260,16 @@ def _accept_quads(image_bgr: npt.NDArray[np.uint8], quads_full: list[Array], ban
 def _accept_partial(image_bgr: npt.NDArray[np.uint8], groups: list[list[sheet_partial.Partial]],
                     finish: Callable[[sheet_partial.Partial, sides.Refined], Refined6 | None],
                     band: float, cfg: SheetConfig, K: Array | None, found: list[Found],
-                    rough_aspect: bool = True, checked: npt.NDArray[np.intp] | None = None
-                    ) -> None:
+                    rough_aspect: bool = True, checked: npt.NDArray[np.intp] | None = None,
+                    fine_bands: tuple[float, ...] = FINE_BANDS) -> None:
     """
     Try every hidden-corner hypothesis of each group (one seen region); keep the best
     supported per group. ``rough_aspect``: test the aspect of the rough corners and the
     floor-tile rule (not for stubs, whose rough hidden corner comes from short rough sides;
     ``_passes`` applies both to the refined corners anyway). The seen sides of all hypotheses
     are refined together; ``checked`` are the sides that must pass the first refinement pass
-    (None: all), ``finish`` turns the refined sides into corners (``sheet_partial.finish``).
+    (None: all), ``fine_bands`` the passes after it, ``finish`` turns the refined sides into
+    corners (``sheet_partial.finish``).
 
     The extrapolated corner scores half the sheet's support times the smaller seen fraction of
     its two sides; the sheet's score is the mean over its corners.
@@ -278,7 +283,7 @@ def _accept_partial(image_bgr: npt.NDArray[np.uint8], groups: list[list[sheet_pa
     hyps = [h for g in groups for h in g]
     rough = [sheet_partial.rough_sides(h) for h in hyps]
     refined = iter(sides.refine_many(image_bgr, [r for r, _ in rough],
-                                     [h.seen_ends for h in hyps], (band, 4.0, 3.0),
+                                     [h.seen_ends for h in hyps], (band,) + fine_bands,
                                      [n for _, n in rough], FIRST_PASS_SUPPORT, checked))
     for group in groups:
         best: tuple[float, Found] | None = None

@@ -91,7 +91,7 @@ def refine(image_bgr: npt.NDArray[np.uint8], hyp: Partial, band_px: float
         (4, 3) outside colours, (5, 2) outline of the seen part) or None.
     """
     rough, n = rough_sides(hyp)
-    out = sides.refine_checked(image_bgr, rough, hyp.seen_ends, (band_px, 4.0, 3.0), n,
+    out = sides.refine_checked(image_bgr, rough, hyp.seen_ends, (band_px, 3.0), n,
                                FIRST_PASS_SUPPORT)
     return None if out is None else finish(hyp, out, band_px)
 

@@ -29,6 +29,7 @@ FIRST_PASS_SUPPORT = 0.25  # a seen side less supported after the widest pass: n
 # Sides checked after that pass: not the stub (2), whose wide profiles near the corner still
 # catch the whole side's edge.
 CHECKED = np.array([0, 1, 3])
+FINE_BANDS = (4.0, 3.0)  # refinement passes after the widest: a stub needs the middle one
 
 
 def _cross(a: Array, b: Array) -> Array:
@@ -236,7 +237,7 @@ def refine(image_bgr: npt.NDArray[np.uint8], hyp: sheet_partial.Partial, band_px
         (4, 3) outside colours, (5, 2) outline of the seen part) or None.
     """
     rough, n = sheet_partial.rough_sides(hyp)
-    out = sides.refine_checked(image_bgr, rough, hyp.seen_ends, (band_px, 4.0, 3.0), n,
+    out = sides.refine_checked(image_bgr, rough, hyp.seen_ends, (band_px,) + FINE_BANDS, n,
                                FIRST_PASS_SUPPORT, CHECKED)
     return None if out is None else finish(hyp, out, band_px, K, aspect)
 
