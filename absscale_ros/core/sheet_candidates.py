@@ -63,20 +63,21 @@ def masks(work_bgr: npt.NDArray[np.uint8], work_white: npt.NDArray[np.uint8],
     one that differs from the surface mostly in tint, where no grey threshold separates them.
     """
     otsu, _ = cv2.threshold(work_white, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
-    hist = np.cumsum(np.bincount(work_white.ravel(), minlength=256))
+    hist = np.cumsum(cv2.calcHist([work_white], [0], None, [256], [0, 256]).ravel())
     top = float(np.searchsorted(hist, 0.995 * hist[-1]))  # 99.5th percentile
-    masks = [(work_white > t).astype(np.uint8)
+    # (cv2.threshold on uint8 tests > floor(t): the same as > t)
+    masks = [cv2.threshold(work_white, t, 1, cv2.THRESH_BINARY)[1]
              for t in (otsu, otsu + (top - otsu) / 3.0, otsu + 2.0 * (top - otsu) / 3.0)]
     blurred = cv2.GaussianBlur(work_bgr, (3, 3), 0)
     edges = cv2.Canny(blurred, cfg.canny_low, cfg.canny_high)
     edges = cv2.dilate(edges, np.ones((3, 3), np.uint8))
-    free = (edges == 0).astype(np.uint8)
+    free = cv2.threshold(edges, 0, 1, cv2.THRESH_BINARY_INV)[1]
     masks.append(free)  # edge-free regions: a sheet's blank areas
     # Everything the image border cannot reach without crossing an edge: objects on the
     # surface, with their text and drawings filled in.
     flood = np.pad(free, 1, constant_values=1)
     cv2.floodFill(flood, None, (0, 0), 2)
-    masks.append((flood[1:-1, 1:-1] != 2).astype(np.uint8))
+    masks.append(cv2.compare(flood[1:-1, 1:-1], 2, cv2.CMP_NE) // 255)
     return masks
 
 
