@@ -60,8 +60,10 @@ def _median_strength(strength: Array, ns: npt.NDArray[np.int64]) -> Array:
     Return (S,) the median over each side's own profiles of its edge strengths, NaN when a
     profile has no edge (as ``np.median`` gives it: ``refine`` then keeps every edge).
     """
+    if ns[0] == ns.max() == ns.min():  # one profile count: the usual case
+        return np.median(np.where(strength > 0, strength, np.nan), axis=1)
     out = np.zeros(len(strength))
-    for n in np.unique(ns):  # one median per profile count: usually one
+    for n in np.unique(ns):  # one median per profile count
         idx = np.flatnonzero(ns == n)
         s = strength[idx, :n]
         out[idx] = np.median(np.where(s > 0, s, np.nan), axis=1)
@@ -78,9 +80,12 @@ def side_colours(samples: Array, ns: npt.NDArray[np.int64] | None = None
     """
     if ns is None:
         ns = np.full(len(samples), samples.shape[1])
-    inside, outside = np.zeros((len(samples), 3)), np.zeros((len(samples), 3))
-    for n in np.unique(ns):  # one slice per profile count: usually one
+    # (the samples' own float32, as a median of them is: the colour step is taken in it)
+    inside = np.zeros((len(samples), 3), samples.dtype)
+    outside = np.zeros((len(samples), 3), samples.dtype)
+    for n in ([ns[0]] if ns.min() == ns.max() else np.unique(ns)):  # usually one count
         idx = np.flatnonzero(ns == n)
+        n = int(n)
         mid = samples[idx, int(0.2 * n):max(int(0.8 * n), int(0.2 * n) + 1)]
         inside[idx] = np.median(mid[:, :, 0, :], axis=1)
         outside[idx] = np.median(mid[:, :, -1, :], axis=1)
@@ -90,17 +95,21 @@ def side_colours(samples: Array, ns: npt.NDArray[np.int64] | None = None
 def _edges(samples: Array, step: Array, centres: Array, offs: Array, normals: Array
            ) -> tuple[Array, Array]:
     """Return (S, n, 2) steepest-descent edge points and (S, n) strengths (0 = none)."""
-    unit = step / np.maximum(np.linalg.norm(step, axis=1, keepdims=True), 1e-9)
+    unit = step / np.maximum(np.sqrt((step * step).sum(axis=1, keepdims=True)), 1e-9)
     proj = np.einsum('snkc,sc->snk', samples, unit)
     proj = 0.25 * proj[..., :-2] + 0.5 * proj[..., 1:-1] + 0.25 * proj[..., 2:]  # light blur
     drop = proj[..., :-2] - proj[..., 2:]  # positive where it gets darker outwards
     k = np.argmax(drop, axis=2)
-    peak = np.take_along_axis(drop, k[..., None], 2)[..., 0]
-    left = np.take_along_axis(drop, np.maximum(k - 1, 0)[..., None], 2)[..., 0]
-    right = np.take_along_axis(drop, np.minimum(k + 1, drop.shape[2] - 1)[..., None], 2)[..., 0]
+    # Flat indexing: take_along_axis costs more than the arithmetic on arrays this small.
+    m = drop.shape[2]
+    flat, at = drop.reshape(-1, m), np.arange(k.size)
+    kf = k.ravel()
+    peak = flat[at, kf].reshape(k.shape)
+    left = flat[at, np.maximum(kf - 1, 0)].reshape(k.shape)
+    right = flat[at, np.minimum(kf + 1, m - 1)].reshape(k.shape)
     den = left - 2.0 * peak + right
-    sub = np.clip(np.where(np.abs(den) > 1e-9, 0.5 * (left - right) / np.where(den == 0, 1, den),
-                           0.0), -0.5, 0.5)
+    sub = np.where(np.abs(den) > 1e-9, 0.5 * (left - right) / np.where(den == 0, 1, den), 0.0)
+    sub = np.minimum(np.maximum(sub, -0.5), 0.5)
     off = offs[2:-2][k] + sub * STEP_PX
     ok = (peak > 0.0) & (k > 0) & (k < drop.shape[2] - 1)
     pts = centres + off[..., None] * normals[:, None, :]
@@ -117,8 +126,8 @@ def fit_lines(pts: Array, weights: Array, outward: Array, scale_px: Array,
     orients the normals.
     """
     w = weights.copy()
-    out = np.zeros((len(pts), 3))
     x, y = pts[..., 0], pts[..., 1]
+    nx = ny = mx = my = np.zeros(len(pts))
     for _ in range(iters):
         sw = np.maximum(w.sum(axis=1), 1e-12)
         mx, my = (w * x).sum(axis=1) / sw, (w * y).sum(axis=1) / sw
@@ -129,10 +138,9 @@ def fit_lines(pts: Array, weights: Array, outward: Array, scale_px: Array,
         nx, ny = -np.sin(phi), np.cos(phi)
         flip = np.where(nx * outward[:, 0] + ny * outward[:, 1] < 0.0, -1.0, 1.0)
         nx, ny = nx * flip, ny * flip
-        out = np.stack([nx, ny, -(nx * mx + ny * my)], axis=1)
         r = (dx * nx[:, None] + dy * ny[:, None]) / (4.685 * scale_px[:, None])
         w = weights * np.where(np.abs(r) < 1.0, (1.0 - r ** 2) ** 2, 0.0)
-    return out
+    return np.stack([nx, ny, -(nx * mx + ny * my)], axis=1)
 
 
 def refine(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
@@ -169,7 +177,8 @@ def refine(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
             inside, outside = side_colours(samples, ns) if colours is None else colours
             step = inside - outside
         pts, strength = _edges(samples, step, centres, offs, lines_[:, :2])
-        strength = np.where(valid, strength, 0.0)
+        if ns.min() < ns.max():
+            strength = np.where(valid, strength, 0.0)
         med = _median_strength(strength, ns)
         keep = (strength > 0) & (strength >= min_rel_strength * np.nan_to_num(med)[:, None])
         usable = keep.sum(axis=1) >= 3
