@@ -34,18 +34,20 @@ def _shared(face_corners: list[Array], f: int, i: int, tol: float) -> bool:
                for g, c in enumerate(face_corners) if g != f)
 
 
-def _widths(inside: npt.NDArray[np.bool_], offs: Array) -> Array:
+def _widths(inside: npt.NDArray[np.bool_], offs: Array, ks: npt.NDArray[np.int64]) -> Array:
     """
-    Return (P,) strip width px per profile (NaN when the strip does not start at the side or
-    does not end inside the band): the last in-colour offset of the run from the side.
+    Return (..., P) strip width px per profile (NaN when the strip does not start at the side
+    or does not end inside the band): the last in-colour offset of the run from the side.
+
+    :param inside: (..., P, K) in-colour samples along the profiles; ``ks`` (...) how many of
+        the K samples each side's profiles reach (the band, within half the side).
     """
-    first = np.argmax(inside[:, :4], axis=1)  # the run may start after a mixed edge pixel
-    started = inside[:, :4].any(axis=1)
-    idx = np.arange(inside.shape[1])[None, :]
-    after = ~inside & (idx > first[:, None])
-    ends = np.where(after.any(axis=1), np.argmax(after, axis=1), -1)
-    w = np.where(started & (ends > 0), offs[np.maximum(ends - 1, 0)] + 0.5 * STEP_PX, np.nan)
-    return w
+    first = np.argmax(inside[..., :4], axis=-1)  # the run may start after a mixed edge pixel
+    started = inside[..., :4].any(axis=-1)
+    idx = np.arange(inside.shape[-1])
+    after = ~inside & (idx > first[..., None]) & (idx < ks[..., None, None])
+    ends = np.where(after.any(axis=-1), np.argmax(after, axis=-1), -1)
+    return np.where(started & (ends > 0), offs[np.maximum(ends - 1, 0)] + 0.5 * STEP_PX, np.nan)
 
 
 def _half_step(bgr: Array, w: Array, offs: Array) -> Array:
@@ -111,29 +113,34 @@ def strip_faces(image_bgr: npt.NDArray[np.uint8], corners: list[Array], colours:
             cand.append((f, i, c0, c1, lines.line_through(c0, c1, centre)[:2], k))
     if not cand:
         return []
-    xy = np.stack([(c0 + ts[:, None] * (c1 - c0))[:, None, :] + offs[None, :, None] * n
-                   for _, _, c0, c1, n, _ in cand]).reshape(-1, len(offs), 2)
+    c0s, c1s, ns = (np.array([c[j] for c in cand]) for j in (2, 3, 4))
+    xy = ((c0s[:, None, :] + ts[None, :, None] * (c1s - c0s)[:, None, :])[:, :, None, :]
+          + offs[None, None, :, None] * ns[:, None, None, :]).reshape(-1, len(offs), 2)
     flat = cv2.remap(image_bgr, xy[..., 0].astype(np.float32), xy[..., 1].astype(np.float32),
                      cv2.INTER_LINEAR)
     samples = flat.reshape(len(cand), PROFILES, len(offs), 3)
     masks = {c: m.reshape(len(cand), PROFILES, len(offs)) for c, m in masks_of(flat).items()}
+    ks = np.array([k for *_, k in cand])
+    widths = {c: _widths(m, offs, ks) for c, m in masks.items()}  # (C, P) each
     found: dict[int, list[tuple[int, str, Array, float, bool]]] = {}
     for s_, (f, i, c0, c1, n, k) in enumerate(cand):
-        for other, inside in masks.items():
-            if other == colours[f]:
-                continue
-            w = _widths(inside[s_, :, :k], offs[:k])
+        for other in masks:
+            w = widths[other][s_]
             ok = np.isfinite(w) & (w >= min_width)
-            if ok.mean() < min_frac:
+            if other == colours[f] or ok.mean() < min_frac:
                 continue
             w = _half_step(samples[s_, :, :k].astype(np.float64), w, offs[:k])
-            slope, icpt = np.polyfit(ts[ok], w[ok], 1)
-            w0, w1 = icpt, icpt + slope
+            t, wk = ts[ok], w[ok]  # a least-squares line: width linear along the side
+            slope = ((t - t.mean()) * (wk - wk.mean())).sum() / ((t - t.mean()) ** 2).sum()
+            w0, w1 = wk.mean() - slope * t.mean(), wk.mean() + slope * (1.0 - t.mean())
             if min(w0, w1) < 0.5 * min_width:
                 continue
             strip = np.array([c0, c0 + w0 * n, c1 + w1 * n, c1])
-            runs_on = _runs_on(image_bgr, strip, other, masks_of)
-            found.setdefault(f, []).append((i, other, strip, float(ok.mean()), runs_on))
+            found.setdefault(f, []).append((i, other, strip, float(ok.mean()), False))
+    strips = [(f, j, x[2], x[1]) for f, xs in found.items() for j, x in enumerate(xs)]
+    for (f, j, _, _), on in zip(strips, _runs_on(image_bgr, [x[2] for x in strips],
+                                                 [x[3] for x in strips], masks_of)):
+        found[f][j] = found[f][j][:4] + (on,)
     out = []
     for face_found in found.values():
         # Faces next to one face differ in colour: one colour on two neighbouring sides is a
@@ -144,19 +151,26 @@ def strip_faces(image_bgr: npt.NDArray[np.uint8], corners: list[Array], colours:
     return out
 
 
-def _runs_on(image_bgr: npt.NDArray[np.uint8], strip: Array, colour: str, masks_of: MaskFn,
-             min_frac: float = 0.6) -> bool:
+def _runs_on(image_bgr: npt.NDArray[np.uint8], strips: list[Array], colours: list[str],
+             masks_of: MaskFn, min_frac: float = 0.6) -> list[bool]:
     """
-    Return True when the strip's colour goes on past either end of its side (mid-width): a
+    Return per strip True when its colour goes on past either end of its side (mid-width): a
     box of that colour behind the face, or the same face running on along a neighbouring
-    face, so the strip's own outline says nothing about a cube face ending there.
+    face, so the strip's own outline says nothing about a cube face ending there. All strips
+    are sampled in one remap and one colour test.
     """
-    c0, far0, far1, c1 = strip
-    length = max(float(np.hypot(*(c1 - c0))), 1e-9)
-    u = (c1 - c0) / length
-    d = 3.0 + np.linspace(0.0, max(6.0, 0.2 * length), 8)
-    mid0, mid1 = 0.5 * (c0 + far0), 0.5 * (c1 + far1)
-    xy = np.stack([mid0 - d[:, None] * u, mid1 + d[:, None] * u]).astype(np.float32)
+    if not strips:
+        return []
+    xys = []
+    for c0, far0, far1, c1 in strips:
+        length = max(float(np.hypot(*(c1 - c0))), 1e-9)
+        u = (c1 - c0) / length
+        d = 3.0 + np.linspace(0.0, max(6.0, 0.2 * length), 8)
+        mid0, mid1 = 0.5 * (c0 + far0), 0.5 * (c1 + far1)
+        xys.append(np.stack([mid0 - d[:, None] * u, mid1 + d[:, None] * u]))
+    xy = np.concatenate(xys).astype(np.float32)  # (2 per strip, 8, 2)
     bgr = cv2.remap(image_bgr, xy[..., 0], xy[..., 1], cv2.INTER_LINEAR,
                     borderMode=cv2.BORDER_REPLICATE)
-    return bool(masks_of(bgr)[colour].mean(axis=1).max() >= min_frac)
+    masks = masks_of(bgr)
+    return [bool(masks[c][2 * j:2 * j + 2].mean(axis=1).max() >= min_frac)
+            for j, c in enumerate(colours)]
