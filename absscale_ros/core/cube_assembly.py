@@ -34,17 +34,16 @@ def cluster_corners(faces: list['Face'], merge_frac: float) -> npt.NDArray[np.in
     sides = [np.hypot(*(f.corners_px - np.roll(f.corners_px, -1, 0)).T) for f in faces]
     longest, shortest = np.array([s.max() for s in sides]), np.array([s.min() for s in sides])
     parent = list(range(len(pts)))
-    for i in range(len(pts)):
-        for j in range(i + 1, len(pts)):
-            if owner[i] == owner[j] or faces[owner[i]].colour == faces[owner[j]].colour:
-                continue
-            # A fraction of the longer sides (a narrow face's short side would allow too
-            # little), but never so much that both ends of a short side could merge.
-            a, b = owner[i], owner[j]
-            tol = max(3.0, min(merge_frac * min(longest[a], longest[b]),
-                               0.4 * min(shortest[a], shortest[b])))
-            if np.hypot(*(pts[i] - pts[j])) < tol:
-                parent[find(parent, i)] = find(parent, j)
+    # A fraction of the longer sides (a narrow face's short side would allow too little), but
+    # never so much that both ends of a short side could merge.
+    la, sa = longest[owner], shortest[owner]
+    tol = np.maximum(3.0, np.minimum(merge_frac * np.minimum(la[:, None], la[None, :]),
+                                     0.4 * np.minimum(sa[:, None], sa[None, :])))
+    colour = np.array([faces[o].colour for o in owner])
+    dist = np.hypot(pts[:, None, 0] - pts[None, :, 0], pts[:, None, 1] - pts[None, :, 1])
+    near = (dist < tol) & (colour[:, None] != colour[None, :])  # other faces: other colours
+    for i, j in zip(*np.nonzero(np.triu(near, 1))):  # in the order of the pairwise loop
+        parent[find(parent, int(i))] = find(parent, int(j))
     return np.array([find(parent, i) for i in range(len(pts))], dtype=np.int64)
 
 
