@@ -31,7 +31,7 @@ def cluster_corners(faces: list['Face'], merge_frac: float) -> npt.NDArray[np.in
     """Return a cluster label per face corner (F*4,), merging near corners of other faces."""
     pts = np.concatenate([f.corners_px for f in faces])
     owner = np.repeat(np.arange(len(faces)), 4)
-    sides = [np.hypot(*(f.corners_px - np.roll(f.corners_px, -1, 0)).T) for f in faces]
+    sides = [np.hypot(*(f.corners_px - f.corners_px[[1, 2, 3, 0]]).T) for f in faces]
     longest, shortest = np.array([s.max() for s in sides]), np.array([s.min() for s in sides])
     parent = list(range(len(pts)))
     # A fraction of the longer sides (a narrow face's short side would allow too little), but
@@ -49,7 +49,7 @@ def cluster_corners(faces: list['Face'], merge_frac: float) -> npt.NDArray[np.in
 
 def _posing(face: 'Face') -> bool:
     """Return True for a face that fixes a pose: whole, and seen at most 70 deg off-axis."""
-    sides = np.hypot(*(face.corners_px - np.roll(face.corners_px, -1, 0)).T)
+    sides = np.hypot(*(face.corners_px - face.corners_px[[1, 2, 3, 0]]).T)
     return not face.thin and sides.min() >= MIN_POSING_ASPECT * sides.max()
 
 

@@ -16,6 +16,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from absscale_ros.core import lines
+
 Array = npt.NDArray[np.float64]
 Posed = tuple[Array, float]  # (8, 2) projected cube vertices, their tolerance px
 # The unit square in the order IPPE_SQUARE wants (x right, y up in the model plane).
@@ -62,7 +64,8 @@ def cube_projections(corners_px: Array, K: Array) -> list[Array]:
 def _signed_areas(polys: Array) -> Array:
     """Return the (N,) signed areas of (N, K, 2) polygons (shoelace)."""
     x, y = polys[..., 0], polys[..., 1]
-    return 0.5 * (x * np.roll(y, -1, axis=-1) - y * np.roll(x, -1, axis=-1)).sum(axis=-1)
+    nxt = (np.arange(x.shape[-1]) + 1) % x.shape[-1]  # np.roll by -1, cheaper
+    return 0.5 * (x * y[..., nxt] - y * x[..., nxt]).sum(axis=-1)
 
 
 def shown_sides(proj: Array) -> list[npt.NDArray[np.float32]]:
@@ -121,7 +124,7 @@ def _explained(vertices_px: Array, posing: list[int], polygons: list[Array], thi
     hulls = [cv2.convexHull(p.astype(np.float32)) for p in polygons]
     for f in posing:
         corners = polygons[f]
-        side = float(np.hypot(*(corners - np.roll(corners, -1, 0)).T).max())
+        side = float(np.hypot(*(corners - corners[[1, 2, 3, 0]]).T).max())
         tol = max(3.0, tol_frac * side)
         for proj in cube_projections(corners, K):
             shown = shown_sides(proj)
@@ -166,7 +169,7 @@ def strip_far_corners(proj: Array, strip: Array, tol: float, slack: float) -> Ar
     if best is None:
         return None
     far = best[1]
-    far_line = np.cross([*far0, 1.0], [*far1, 1.0])
+    far_line = lines.cross3(np.array([*far0, 1.0]), np.array([*far1, 1.0]))
     far_line /= max(float(np.hypot(*far_line[:2])), 1e-12)
     width = max(np.hypot(*(far0 - c0)), np.hypot(*(far1 - c1)))
     along = (far - c0) @ (c1 - c0) / max(float((c1 - c0) @ (c1 - c0)), 1e-9)
