@@ -173,22 +173,28 @@ def _face_quads(mask: npt.NDArray[np.uint8], cfg: CubeConfig, scale: float = 1.0
     return out
 
 
-def _hough_sides(quad: Array, contour_px: Array, cfg: CubeConfig) -> list[Array]:
-    """Return the four side lines of a face by a Hough vote over its outline near each side."""
-    centre = quad.mean(axis=0)
-    side_lines = []
-    for i in range(4):
-        p0, p1 = quad[i], quad[(i + 1) % 4]
-        line = lines.line_through(p0, p1, centre)
-        d = np.abs(contour_px @ line[:2] + line[2])
-        t = (contour_px - p0) @ (p1 - p0) / max(float((p1 - p0) @ (p1 - p0)), 1e-9)
-        near = contour_px[(d < 6.0) & (t > 0.2) & (t < 0.8)]  # clear of cut corners
-        if len(near) >= 5:
-            theta0 = float(np.arctan2(line[1], line[0]))
-            theta, rho = lines.hough_line(near, theta0, -line[2], cfg.hough_theta_deg)
-            line = np.array([np.cos(theta), np.sin(theta), -rho])
-        side_lines.append(line)
-    return side_lines
+def _hough_sides(faces: list[tuple[Array, Array]], cfg: CubeConfig) -> list[Array]:
+    """
+    Return per face (rough quad, outline px) its (4, 3) side lines, each by a Hough vote over
+    the outline near that side (all sides of all faces in one ``lines.hough_lines`` call).
+    """
+    side_lines, votes = [], []  # votes: (face, side, outline points, theta guess, rho guess)
+    for f, (quad, contour_px) in enumerate(faces):
+        centre = quad.mean(axis=0)
+        for i in range(4):
+            p0, p1 = quad[i], quad[(i + 1) % 4]
+            line = lines.line_through(p0, p1, centre)
+            d = np.abs(contour_px @ line[:2] + line[2])
+            t = (contour_px - p0) @ (p1 - p0) / max(float((p1 - p0) @ (p1 - p0)), 1e-9)
+            near = contour_px[(d < 6.0) & (t > 0.2) & (t < 0.8)]  # clear of cut corners
+            if len(near) >= 5:
+                votes.append((f, i, near, float(np.arctan2(line[1], line[0])), -line[2]))
+            side_lines.append(line)
+    peaks = lines.hough_lines([v[2] for v in votes], np.array([v[3] for v in votes]),
+                              np.array([v[4] for v in votes]), cfg.hough_theta_deg)
+    for (f, i, *_), (theta, rho) in zip(votes, peaks):
+        side_lines[4 * f + i] = np.array([np.cos(theta), np.sin(theta), -rho])
+    return [np.array(side_lines[4 * f:4 * f + 4]) for f in range(len(faces))]
 
 
 def _refine_faces(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array, Array]],
@@ -234,14 +240,13 @@ def detect_faces(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig) -> list[Face
     work = cv2.resize(image_bgr, (round(w * scale), round(h * scale)),
                       interpolation=cv2.INTER_AREA)
     hsv = cv2.cvtColor(work, cv2.COLOR_BGR2HSV)
-    rough = []
+    found = []  # (colour, rough quad, outline), full-resolution px
     for colour, mask in colour_masks(hsv, cfg).items():
         for quad, contour in _face_quads(mask, cfg, scale):
-            quad_full = (quad + 0.5) / scale - 0.5
-            contour_full = (contour.reshape(-1, 2).astype(np.float64) + 0.5) / scale - 0.5
-            rough.append((colour, np.array(_hough_sides(quad_full, contour_full, cfg)),
-                          quad_full))
-    return _refine_faces(image_bgr, rough, cfg)
+            found.append((colour, (quad + 0.5) / scale - 0.5,
+                          (contour.reshape(-1, 2).astype(np.float64) + 0.5) / scale - 0.5))
+    hough = _hough_sides([(q, c) for _, q, c in found], cfg)
+    return _refine_faces(image_bgr, [(c, h, q) for (c, q, _), h in zip(found, hough)], cfg)
 
 
 def _strips(image_bgr: npt.NDArray[np.uint8], faces: list[Face], cfg: CubeConfig

@@ -102,6 +102,34 @@ def cross3(a: Array, b: Array) -> Array:
                      a[0] * b[1] - a[1] * b[0]])
 
 
+def hough_lines(points_px: list[Array], theta0s_rad: Array, rho0s_px: Array,
+                theta_res_deg: float = 2.0, span_deg: float = 10.0, rho_res_px: float = 1.0
+                ) -> list[tuple[float, float]]:
+    """
+    Return ``hough_line`` of several point sets (each its own guess), in one accumulator: the
+    same peaks as one call per set (a wider rho range adds only empty strips).
+    """
+    if not points_px:
+        return []
+    offs = np.deg2rad(np.arange(-span_deg, span_deg + 1e-9, theta_res_deg))
+    thetas = np.asarray(theta0s_rad)[:, None] + offs  # (S, T), as theta0 + offs per set
+    sid = np.repeat(np.arange(len(points_px)), [len(p) for p in points_px])
+    pts = np.concatenate(points_px)
+    rhos = pts[:, :1] * np.cos(thetas)[sid] + pts[:, 1:2] * np.sin(thetas)[sid]
+    bins = np.round((rhos - np.asarray(rho0s_px)[sid, None]) / rho_res_px).astype(np.int64)
+    halves = np.zeros(len(points_px), dtype=np.int64)
+    np.maximum.at(halves, sid, np.abs(bins).max(axis=1))
+    half = int(halves.max()) + 2
+    width, n_t = 2 * half + 1, thetas.shape[1]
+    n_s = len(points_px)
+    acc = np.bincount(((sid[:, None] * n_t + np.arange(n_t)) * width + bins + half).ravel(),
+                      minlength=n_s * n_t * width).reshape(n_s, n_t, width)
+    strip = (acc[..., :-2] + acc[..., 1:-1] + acc[..., 2:]).reshape(n_s, -1)
+    j, k = np.divmod(np.argmax(strip, axis=1), width - 2)
+    return [(float(thetas[s, j[s]]), float(rho0s_px[s] + (k[s] + 1 - half) * rho_res_px))
+            for s in range(n_s)]
+
+
 def quad_corners(lines: list[Array]) -> Array | None:
     """Return the (4, 2) corners of four cyclically ordered side lines, or None."""
     corners = []

@@ -50,3 +50,18 @@ def test_colour_masks_equal_one_mask_per_colour():
         one = detect_cube.colour_mask(hsv, hue, cfg)
         assert np.count_nonzero(one) > 1000  # every face is seen
         np.testing.assert_array_equal(masks[colour], one)
+
+
+def test_hough_lines_equal_one_vote_per_point_set():
+    rng = np.random.default_rng(4)
+    sets, thetas, rhos = [], [], []
+    for _ in range(12):  # sides of several lengths, directions and offsets
+        ang, length = rng.uniform(-np.pi, np.pi), rng.uniform(20.0, 400.0)
+        d, p0 = np.array([np.cos(ang), np.sin(ang)]), rng.uniform(0.0, 1280.0, 2)
+        u = np.linspace(0.0, length, int(length / 2))
+        normal = np.array([-d[1], d[0]])
+        sets.append(np.round(2.0 * (p0 + u[:, None] * d)) / 2.0)  # on a half-pixel grid
+        thetas.append(np.arctan2(normal[1], normal[0]) + rng.normal(0.0, 0.05))
+        rhos.append(float(p0 @ normal) + rng.normal(0.0, 2.0))
+    batched = lines.hough_lines(sets, np.array(thetas), np.array(rhos))
+    assert batched == [lines.hough_line(p, t, r) for p, t, r in zip(sets, thetas, rhos)]
