@@ -196,7 +196,9 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
         _accept_partial(image_bgr, groups,
                         lambda hyp, out: sheet_stub.finish(hyp, out, band, K_, aspect), band,
                         cfg, K, found, rough_aspect=False, checked=sheet_stub.CHECKED,
-                        fine_bands=sheet_stub.FINE_BANDS)
+                        fine_bands=sheet_stub.FINE_BANDS,
+                        screen=lambda hyp, out: sheet_stub.finish(
+                            hyp, out, band, K_, aspect, sheet_stub.SCREEN_SLACK) is not None)
     found.sort(key=lambda f: -f[0])
     return [_detection(f, cfg.model()) for f in found]
 
@@ -261,7 +263,9 @@ def _accept_partial(image_bgr: npt.NDArray[np.uint8], groups: list[list[sheet_pa
                     finish: Callable[[sheet_partial.Partial, sides.Refined], Refined6 | None],
                     band: float, cfg: SheetConfig, K: Array | None, found: list[Found],
                     rough_aspect: bool = True, checked: npt.NDArray[np.intp] | None = None,
-                    fine_bands: tuple[float, ...] = FINE_BANDS) -> None:
+                    fine_bands: tuple[float, ...] = FINE_BANDS,
+                    screen: Callable[[sheet_partial.Partial, sides.Refined], bool] | None = None
+                    ) -> None:
     """
     Try every hidden-corner hypothesis of each group (one seen region); keep the best
     supported per group. ``rough_aspect``: test the aspect of the rough corners and the
@@ -269,7 +273,7 @@ def _accept_partial(image_bgr: npt.NDArray[np.uint8], groups: list[list[sheet_pa
     ``_passes`` applies both to the refined corners anyway). The seen sides of all hypotheses
     are refined together; ``checked`` are the sides that must pass the first refinement pass
     (None: all), ``fine_bands`` the passes after it, ``finish`` turns the refined sides into
-    corners (``sheet_partial.finish``).
+    corners (``sheet_partial.finish``); ``screen`` drops hypotheses after the first pass.
 
     The extrapolated corner scores half the sheet's support times the smaller seen fraction of
     its two sides; the sheet's score is the mean over its corners.
@@ -284,7 +288,9 @@ def _accept_partial(image_bgr: npt.NDArray[np.uint8], groups: list[list[sheet_pa
     rough = [sheet_partial.rough_sides(h) for h in hyps]
     refined = iter(sides.refine_many(image_bgr, [r for r, _ in rough],
                                      [h.seen_ends for h in hyps], (band,) + fine_bands,
-                                     [n for _, n in rough], FIRST_PASS_SUPPORT, checked))
+                                     [n for _, n in rough], FIRST_PASS_SUPPORT, checked,
+                                     None if screen is None else
+                                     lambda c, out: screen(hyps[c], out)))
     for group in groups:
         best: tuple[float, Found] | None = None
         for hyp in group:

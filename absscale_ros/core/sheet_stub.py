@@ -30,6 +30,7 @@ FIRST_PASS_SUPPORT = 0.25  # a seen side less supported after the widest pass: n
 # catch the whole side's edge.
 CHECKED = np.array([0, 1, 3])
 FINE_BANDS = (4.0, 3.0)  # refinement passes after the widest: a stub needs the middle one
+SCREEN_SLACK = 3.0  # ``finish``'s slack after the widest pass: half the hypotheses go there
 
 
 def _cross(a: Array, b: Array) -> Array:
@@ -243,14 +244,19 @@ def refine(image_bgr: npt.NDArray[np.uint8], hyp: sheet_partial.Partial, band_px
 
 
 def finish(hyp: sheet_partial.Partial, out: sides.Refined, band_px: float, K: Array,
-           aspect: float) -> tuple[Array, Array, Array, Array, Array, Array] | None:
-    """``refine`` after the sides' refinement ``out`` (``sides.refine_checked``)."""
+           aspect: float, slack: float = 1.0
+           ) -> tuple[Array, Array, Array, Array, Array, Array] | None:
+    """
+    ``refine`` after the sides' refinement ``out`` (``sides.refine_checked``). ``slack`` > 1:
+    a screen after the widest pass only: the stub's edge, and so the third corner, are not
+    settled yet, so neither is checked, and the occluder may cut ``slack`` times less deep.
+    """
     ls, supports, steps, inside, outside = out
     seen = [lines.intersect(ls[a], ls[b]) for a, b in ((3, 0), (0, 1), (1, 2))]
     if any(c is None for c in seen):
         return None
     b, corner_l, t = seen
-    if supports[2] < STUB_MIN_SUPPORT:
+    if slack == 1.0 and supports[2] < STUB_MIN_SUPPORT:
         return None  # a stray edge point on a few pixels of side: the occluder is too close
     if max(np.hypot(*(c - h)) for c, h in zip(seen, hyp.corners)) > 2.0 * band_px + 4.0:
         return None
@@ -258,11 +264,12 @@ def finish(hyp: sheet_partial.Partial, out: sides.Refined, band_px: float, K: Ar
     r = None if vanish is None else hidden_corner(t, hyp.corners[3], vanish, ls[3])
     if r is None or np.hypot(*(r - b)) <= np.hypot(*(hyp.seen_ends[3, 0] - b)):
         return None  # the hidden corner must lie beyond the part of its side that is seen
-    if abs(float(ls[2, :2] @ (r - t))) > np.sin(np.deg2rad(STUB_MAX_DEG)) * np.hypot(*(r - t)):
+    max_sin = np.sin(np.deg2rad(STUB_MAX_DEG))
+    if slack == 1.0 and abs(float(ls[2, :2] @ (r - t))) > max_sin * np.hypot(*(r - t)):
         return None  # the stub's edge is not the predicted side (the occluder's own edge)
     t_pred = far_corners(corner_l, b, ls[1], ls[3], K, aspect)
     side = float(np.hypot(*(t - corner_l)))
-    if min(np.hypot(*(t - p)) for p in t_pred) > STUB_AGREE * side + 0.5:
+    if slack == 1.0 and min(np.hypot(*(t - p)) for p in t_pred) > STUB_AGREE * side + 0.5:
         return None  # the stub's corner is not where the sheet's shape puts it
     # A few pixels of side next to a corner and an occluder give no fair sample of the
     # colours on either side of it: the one-colour tests use the other three sides.
@@ -270,7 +277,7 @@ def finish(hyp: sheet_partial.Partial, out: sides.Refined, band_px: float, K: Ar
     inside[2] = np.median(inside[[0, 1, 3]], axis=0)
     outside[2] = np.median(outside[[0, 1, 3]], axis=0)
     corners = np.array([b, corner_l, t, r])
-    if hyp.outline is not None and not occluded(corners, hyp.outline, OCCLUDER_DEPTH):
+    if hyp.outline is not None and not occluded(corners, hyp.outline, OCCLUDER_DEPTH / slack):
         return None
     cuts = [hyp.seen_ends[2, 1], hyp.seen_ends[3, 0]]  # the cut points moved onto the sides
     cuts = [q - (ls[s, :2] @ q + ls[s, 2]) * ls[s, :2] for s, q in zip((2, 3), cuts)]

@@ -13,6 +13,8 @@ edge points of a side is its refined line, from a coarse band to a fine one.
 
 Lines are ``(a, b, c)`` with unit normal pointing out of the outlined region, as in ``lines``.
 """
+from typing import Callable
+
 import cv2
 import numpy as np
 import numpy.typing as npt
@@ -239,11 +241,13 @@ def refine_checked(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
 
 def refine_many(image_bgr: npt.NDArray[np.uint8], lines_: list[Array], ends: list[Array],
                 bands_px: tuple[float, ...], ns: list[int], min_first_support: float | Array,
-                checked: npt.NDArray[np.intp] | None = None) -> list[Refined | None]:
+                checked: npt.NDArray[np.intp] | None = None,
+                screen: Callable[[int, Refined], bool] | None = None) -> list[Refined | None]:
     """
     ``refine_checked`` of several candidates (each its (S_c, 3) lines, (S_c, 2, 2) ends and
     profile count) in one ``refine`` call per pass, with the same results: a call costs about
-    a millisecond of numpy overhead whatever the number of sides.
+    a millisecond of numpy overhead whatever the number of sides. ``screen(c, first)``: False
+    drops candidate ``c`` after the first pass too.
     """
     if not lines_:
         return []
@@ -260,7 +264,8 @@ def refine_many(image_bgr: npt.NDArray[np.uint8], lines_: list[Array], ends: lis
     for c in range(len(lines_)):
         sup = part(first, c, starts)[1]
         keep.append(bool(((sup if checked is None else sup[checked])
-                          >= min_first_support).all()))
+                          >= min_first_support).all())
+                    and (screen is None or screen(c, part(first, c, starts))))
     out: list[Refined | None] = [part(first, c, starts) if k else None
                                  for c, k in enumerate(keep)]
     idx = [c for c, k in enumerate(keep) if k]
