@@ -78,14 +78,18 @@ def detect(image_bgr: npt.NDArray[np.uint8], cfg: DetectConfig,
         raise ValueError(f'need an (H, W, 3) uint8 image, got {image_bgr.shape} {image_bgr.dtype}')
     found: list[targets.TargetDetection] = []
     looked: list[str] = []
+    sheet_cfgs = cfg.sheet_configs()
+    half = None
+    if cfg.target == 'auto':  # both detectors start from the image box-filtered to half size
+        h, w = image_bgr.shape[:2]
+        half = cv2.resize(image_bgr, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
     if cfg.target in ('cube', 'auto'):
         looked.append('cube')
-        found += detect_cube.detect_cubes(image_bgr, cfg.cube, K)
-    sheet_cfgs = cfg.sheet_configs()
+        found += detect_cube.detect_cubes(image_bgr, cfg.cube, K, half)
     if sheet_cfgs:
         looked.append('sheet')
     for sheet_cfg in sheet_cfgs:
-        for det in detect_sheet.detect_sheets(image_bgr, sheet_cfg, K):
+        for det in detect_sheet.detect_sheets(image_bgr, sheet_cfg, K, half):
             if not any(_same_sheet(det, d) for d in found):
                 found.append(det)
     found = [replace(d, object_id=i) for i, d in enumerate(found)]

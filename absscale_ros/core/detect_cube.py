@@ -233,12 +233,21 @@ def _refine_faces(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array
     return faces
 
 
-def detect_faces(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig) -> list[Face]:
-    """Return every face-like region of each cube colour, refined, full-resolution px."""
+def detect_faces(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
+                 half: npt.NDArray[np.uint8] | None = None) -> list[Face]:
+    """
+    Return every face-like region of each cube colour, refined, full-resolution px.
+
+    :param half: the image box-filtered to half its size (``INTER_AREA``), when another
+        detector made it: the work image when that is its size.
+    """
     h, w = image_bgr.shape[:2]
     scale = min(1.0, cfg.work_max_side_px / max(h, w))
-    work = cv2.resize(image_bgr, (round(w * scale), round(h * scale)),
-                      interpolation=cv2.INTER_AREA)
+    size = (round(w * scale), round(h * scale))
+    if half is not None and half.shape[1::-1] == size and (w, h) == (2 * size[0], 2 * size[1]):
+        work = half
+    else:
+        work = cv2.resize(image_bgr, size, interpolation=cv2.INTER_AREA)
     hsv = cv2.cvtColor(work, cv2.COLOR_BGR2HSV)
     found = []  # (colour, rough quad, outline), full-resolution px
     for colour, mask in colour_masks(hsv, cfg).items():
@@ -270,16 +279,18 @@ def _strips(image_bgr: npt.NDArray[np.uint8], faces: list[Face], cfg: CubeConfig
 
 
 def detect_cubes(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
-                 K: Array | None = None) -> list[targets.TargetDetection]:
+                 K: Array | None = None, half: npt.NDArray[np.uint8] | None = None
+                 ) -> list[targets.TargetDetection]:
     """
     Find tri-colour cubes in a BGR image.
 
     :param image_bgr: (H, W, 3) uint8 BGR image.
     :param K: (3, 3) intrinsics px for the cube shape check, or None to estimate.
+    :param half: the image box-filtered to half its size, when another detector made it.
     :returns: one detection per cube, with vertices, ids (see ``targets``), edges and
         per-face polygons.
     """
-    faces = detect_faces(image_bgr, cfg)
+    faces = detect_faces(image_bgr, cfg, half)
     if not faces:
         return []
     faces += _strips(image_bgr, faces, cfg)

@@ -161,7 +161,8 @@ def _quad_from_sides(quad_px: Array, out: sides.Refined, coarse_band_px: float
 
 
 def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
-                  K: Array | None = None) -> list[targets.TargetDetection]:
+                  K: Array | None = None, half: npt.NDArray[np.uint8] | None = None
+                  ) -> list[targets.TargetDetection]:
     """
     Find every sheet of the configured size in a BGR image.
 
@@ -170,11 +171,12 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
 
     :param image_bgr: (H, W, 3) uint8 BGR image.
     :param K: (3, 3) intrinsics px for the aspect check, or None to estimate.
+    :param half: the image box-filtered to half its size, when another detector made it.
     :returns: detections, best first; each has 4 corners ordered as in ``targets``.
     """
     h, w = image_bgr.shape[:2]
     scale = min(1.0, cfg.work_max_side_px / max(h, w))
-    work = sheet_candidates.shrink(image_bgr, scale)
+    work = sheet_candidates.shrink(image_bgr, scale, half)
     found: list[Found] = []
     band = max(6.0, 3.0 / scale)
     quads_, regions = sheet_candidates.candidates(work, cfg)

@@ -30,15 +30,20 @@ PENT_MIN_SOLIDITY = 0.75  # a region with a corner cut off by an occluder's notc
 FREE_INSET_PX = 2.0  # a 3x3-dilated Canny line keeps edge-free regions this far inside
 
 
-def shrink(image: npt.NDArray[np.uint8], scale: float) -> npt.NDArray[np.uint8]:
+def shrink(image: npt.NDArray[np.uint8], scale: float,
+           half: npt.NDArray[np.uint8] | None = None) -> npt.NDArray[np.uint8]:
     """
     Return ``image`` resized by ``scale`` (<= 1): box-filtered halvings (OpenCV's fast
     integer-factor path), then bilinear to the exact size; about 6x less CPU than one
-    ``INTER_AREA`` resize by a non-integer factor, and as free of aliasing.
+    ``INTER_AREA`` resize by a non-integer factor, and as free of aliasing. ``half``: the first
+    halving when another detector made it already.
     """
     h, w = image.shape[:2]
     size = (round(w * scale), round(h * scale))
     out = image
+    if half is not None and half.shape[:2] == (h // 2, w // 2) and \
+            w >= 2 * size[0] and h >= 2 * size[1]:
+        out = half
     while out.shape[1] >= 2 * size[0] and out.shape[0] >= 2 * size[1]:
         out = cv2.resize(out, (out.shape[1] // 2, out.shape[0] // 2),
                          interpolation=cv2.INTER_AREA)
