@@ -270,9 +270,9 @@ def _accept_partial(image_bgr: npt.NDArray[np.uint8], groups: list[list[sheet_pa
                     ) -> None:
     """
     Try every hidden-corner hypothesis of each group (one seen region); keep the best
-    supported per group. ``rough_aspect``: test the aspect of the rough corners and the
-    floor-tile rule (not for stubs, whose rough hidden corner comes from short rough sides;
-    ``_passes`` applies both to the refined corners anyway). The seen sides of all hypotheses
+    supported per group. ``rough_aspect``: test the aspect of the rough corners (not for
+    stubs, whose rough hidden corner comes from short rough sides; ``_passes`` applies it and
+    the floor-tile rule to the refined corners anyway). The seen sides of all hypotheses
     are refined together; ``checked`` are the sides that must pass the first refinement pass
     (None: all), ``fine_bands`` the passes after it, ``finish`` turns the refined sides into
     corners (``sheet_partial.finish``); ``screen`` drops hypotheses after the first pass.
@@ -298,9 +298,7 @@ def _accept_partial(image_bgr: npt.NDArray[np.uint8], groups: list[list[sheet_pa
         for hyp in group:
             sides_out = next(refined)
             out = None if sides_out is None else finish(hyp, sides_out)
-            if out is None or \
-                    (rough_aspect and _tile(image_bgr, hyp.corners, cfg, hyp.seen_ends)) or \
-                    not _big_enough(out[5], image_bgr.shape, cfg) or \
+            if out is None or not _big_enough(out[5], image_bgr.shape, cfg) or \
                     not _passes(image_bgr, out[:5], cfg, K, hyp.seen_ends) or \
                     not _covered(image_bgr, out[0][3], out[3], cfg):
                 continue
