@@ -16,17 +16,36 @@ import numpy as np
 STEP_M = 0.12  # between keyframes: about a tenth of the depth, as the selector spaces them
 
 
-@functools.lru_cache(maxsize=1)
-def sideways_keyframes(count: int = 6, seed: int = 3) -> tuple:
-    """(images bgr, camera, T_world_cam list, mesh) of ``count`` keyframes."""
+def _rendered(poses: list[np.ndarray], seed: int) -> tuple:
     scene = scenes.build_scene('indoor_paper', seed)
     cam = simcam.make_camera(np.random.default_rng(seed), 640, 360)
     renderer = render.Renderer(scene, cam)
-    w = scene.walk
-    target = np.array([w['target_x'], w['target_y'], w['target_z']])
-    start = target + np.array([-0.4, -1.6, 0.9])
-    poses = [_look_at(start + [STEP_M * k, 0.0, 0.0], target) for k in range(count)]
     images = [np.clip(renderer.render(T).colour, 0, 255).astype(np.uint8)[..., ::-1].copy()
               for T in poses]
     mesh = dense_evaluation.SceneMesh(scene.vertices_m, scene.triangles)
     return images, cam, poses, mesh
+
+
+def _target(seed: int) -> np.ndarray:
+    w = scenes.build_scene('indoor_paper', seed).walk
+    return np.array([w['target_x'], w['target_y'], w['target_z']])
+
+
+@functools.lru_cache(maxsize=1)
+def sideways_keyframes(count: int = 6, seed: int = 3) -> tuple:
+    """(images bgr, camera, T_world_cam list, mesh) of ``count`` keyframes."""
+    target = _target(seed)
+    start = target + np.array([-0.4, -1.6, 0.9])
+    return _rendered([_look_at(start + [STEP_M * k, 0.0, 0.0], target) for k in range(count)],
+                     seed)
+
+
+@functools.lru_cache(maxsize=1)
+def forward_keyframes(seed: int = 3) -> tuple:
+    """Two keyframes of a walk towards the sheet: 0.4 m, mostly along the optical axis."""
+    target = _target(seed)
+    start = target + np.array([-0.4, -1.6, 0.9])
+    ahead = (target - start) / np.linalg.norm(target - start)
+    side = np.cross(ahead, [0.0, 0.0, 1.0])
+    step = 0.4 * (0.9 * ahead + np.sqrt(1 - 0.81) * side / np.linalg.norm(side))
+    return _rendered([_look_at(start, target), _look_at(start + step, target)], seed)

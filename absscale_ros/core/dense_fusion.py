@@ -35,6 +35,7 @@ class FusionConfig:
     max_new_maps: int = 2  # stereo pairs computed per update at most (the rest wait)
     both_sides: bool = True  # a partner on each side of a keyframe (two depth maps), else one
     recompute_deg: float = 0.2  # pair rotation / baseline direction moved more: new depth
+    average: bool = True  # a kept point is the mean of the depth maps that agree with it
     outlier_neighbours: int = 16  # statistical outlier removal: neighbours considered
     outlier_std: float = 2.0  # ... and the mean-distance threshold, in standard deviations
     normal_neighbours: int = 20  # points used for a normal
@@ -183,11 +184,18 @@ class DenseFusion:
             pts, colours = own.points_camera()
             world = pts @ kf.pose[:3, :3].T + kf.pose[:3, 3]
             votes = np.zeros(len(pts), np.int32)
+            total = world.copy()
             for m, pose, _ in maps:  # the keyframe's other side is an independent pair too
-                todo = np.flatnonzero(votes < self.cfg.min_consistent)
-                if m is not own and len(todo):
-                    votes[todo] += agrees(world[todo], pose, m, self.cfg.consistency_rel)
+                if m is not own and (self.cfg.average or np.any(votes < self.cfg.min_consistent)):
+                    ok, ratio = agreeing(world, pose, m, self.cfg.consistency_rel)
+                    votes += ok
+                    # The other map's estimate of the same surface point, along its own ray:
+                    # averaging independent pairs shrinks SGBM's sub-pixel noise.
+                    total[ok] += pose[:3, 3] + (world[ok] - pose[:3, 3]) * ratio[ok, None]
             keep = votes >= self.cfg.min_consistent
+            if self.cfg.average:
+                world = total / (1.0 + votes[:, None])
+                pts = (world - kf.pose[:3, 3]) @ kf.pose[:3, :3]
             keep_pts.append(pts[keep])
             keep_col.append(colours[keep])
         return dense_cloud.clean(np.concatenate(keep_pts), np.concatenate(keep_col), self.cfg)
@@ -210,9 +218,12 @@ class DenseFusion:
         return sum(1 for s in getattr(self, '_stamps', []) if self._frames[s].cloud is not None)
 
 
-def agrees(world: FloatArray, T_world_cam: FloatArray, depth: dense_stereo.DepthMap,
-           tolerance_rel: float) -> npt.NDArray[np.bool_]:
-    """Which world points the depth map of another keyframe sees at the same depth."""
+def agreeing(world: FloatArray, T_world_cam: FloatArray, depth: dense_stereo.DepthMap,
+             tolerance_rel: float) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.float32]]:
+    """
+    Which world points the depth map of another keyframe sees at the same depth, and the
+    ratio of its depth to theirs along its rays (valid where they agree).
+    """
     R = depth.R_rect @ T_world_cam[:3, :3].T
     p = (world - T_world_cam[:3, 3]) @ R.T
     z = p[:, 2]
@@ -224,7 +235,8 @@ def agrees(world: FloatArray, T_world_cam: FloatArray, depth: dense_stereo.Depth
     ok &= (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
     seen = np.zeros(len(p), np.float32)
     seen[ok] = depth.depth[uv[ok, 1], uv[ok, 0]]
-    return ok & (seen > 0) & (np.abs(seen - z) <= tolerance_rel * z)
+    ok &= (seen > 0) & (np.abs(seen - z) <= tolerance_rel * z)
+    return ok, np.where(ok, seen / np.maximum(z, 1e-6), 1.0).astype(np.float32)
 
 
 def pose_matrices(poses_xyzw: FloatArray, stamps_ns: npt.ArrayLike) -> dict[int, FloatArray]:

@@ -17,6 +17,7 @@ import numpy.typing as npt
 from absscale_ros.core.types import CameraModel
 
 FloatArray = npt.NDArray[np.float64]
+_MIN_RAY_DEG = 5.0  # rays closer to the baseline have too little parallax to be rectified
 
 
 @dataclass(frozen=True)
@@ -84,7 +85,9 @@ def pair_quality(T_world_ref: FloatArray, T_world_other: FloatArray, depth_m: fl
     if baseline < 1e-9 or np.degrees(np.arccos(cos)) > cfg.max_angle_deg or \
             abs(c[2]) / baseline > cfg.max_forward_fraction:
         return None
-    return abs(np.log(baseline / depth_m / cfg.target_baseline_ratio))
+    # Depth precision goes with the baseline across the view: a forward step counts less.
+    across = baseline * np.sqrt(max(1.0 - (c[2] / baseline) ** 2, 1e-6))
+    return abs(np.log(across / depth_m / cfg.target_baseline_ratio))
 
 
 def _disparity_range(left: np.ndarray, right: np.ndarray, cfg: StereoConfig) -> tuple[int, int]:
@@ -123,16 +126,28 @@ def rectifying_rotations(T_other_ref: FloatArray) -> tuple[FloatArray, FloatArra
 
 def _rectified_camera(K: FloatArray, R_rect: FloatArray, size: tuple[int, int],
                       max_grow: float) -> tuple[FloatArray, tuple[int, int]]:
-    """Intrinsics and canvas that hold the whole rectified reference (up to ``max_grow``)."""
+    """
+    Intrinsics and canvas (at most ``max_grow`` times the keyframe) of the rectified reference.
+
+    A pair that moved mostly forward looks near its epipole, where rectification stretches
+    the image without bound: the focal length shrinks by the typical stretch, so the view
+    keeps its resolution, and rays stretched ``max_grow`` times more than that (or within
+    ``_MIN_RAY_DEG`` of the baseline: no parallax) are left out. A sideways pair is unchanged.
+    """
     w, h = size
-    corners = np.array([[0, 0, 1], [w - 1, 0, 1], [0, h - 1, 1], [w - 1, h - 1, 1]], float)
-    ray = (R_rect @ np.linalg.inv(K) @ corners.T).T
-    ray = ray[ray[:, 2] > 1e-6]
-    f = float(K[0, 0])
-    xy = f * ray[:, :2] / ray[:, 2:]
-    lo, hi = xy.min(0), xy.max(0)
+    u, v = np.meshgrid(np.linspace(0, w - 1, 17), np.linspace(0, h - 1, 9))
+    ray = np.linalg.inv(K) @ np.stack([u.ravel(), v.ravel(), np.ones(u.size)])
+    ray /= np.linalg.norm(ray, axis=0)
+    rect = R_rect @ ray
+    usable = rect[2] > np.sin(np.radians(_MIN_RAY_DEG))
+    stretch = (ray[2, usable] / rect[2, usable]) ** 1.5  # rectified / original pixel density
+    typical = max(1.0, float(np.median(stretch)))
+    keep = np.flatnonzero(usable)[stretch <= max_grow * typical]
+    f = float(K[0, 0]) / typical
+    xy = f * rect[:2, keep] / rect[2, keep]
+    lo, hi = xy.min(1), xy.max(1)
     span = np.minimum(hi - lo, np.array([w, h]) * max_grow)
-    centre = (lo + hi) / 2.0
+    centre = np.clip(np.median(xy, axis=1), lo + span / 2, hi - span / 2)
     K_rect = np.array([[f, 0.0, span[0] / 2 - centre[0]], [0.0, f, span[1] / 2 - centre[1]],
                        [0.0, 0.0, 1.0]])
     return K_rect, (int(span[0]) + 1, int(span[1]) + 1)
@@ -153,13 +168,17 @@ def compute_depth(ref_bgr: np.ndarray, other_bgr: np.ndarray, camera: CameraMode
     T = relative_pose(T_world_ref, T_world_other)  # ref -> other
     R_ref, R_other, baseline = rectifying_rotations(T)
     K_rect, canvas = _rectified_camera(cam.K, R_ref, size, cfg.max_canvas_grow)
-    rect, inside = [], []
-    for img, R in ((ref_bgr, R_ref), (other_bgr, R_other)):
-        mx, my = cv2.initUndistortRectifyMap(cam.K, dist, R, K_rect, canvas, cv2.CV_32FC1)
-        rect.append(cv2.remap(img, mx, my, cv2.INTER_LINEAR))
-        inside.append((mx >= 0) & (my >= 0) & (mx <= size[0] - 1) & (my <= size[1] - 1))
+    rect, inside = _rectify(ref_bgr, other_bgr, cam, dist, (R_ref, R_other), K_rect, canvas)
     grey = [cv2.cvtColor(r, cv2.COLOR_BGR2GRAY) for r in rect]
-    disp = _sgbm(grey[0], grey[1], cfg)
+    lo, num = _disparity_range(grey[0], grey[1], cfg)
+    # SGBM leaves the first lo + num columns without a disparity: widen both canvases to the
+    # left by that much, so the whole reference is matched (the other image has more there).
+    K_rect = K_rect.copy()
+    K_rect[0, 2] += lo + num
+    canvas = (canvas[0] + lo + num, canvas[1])
+    rect, inside = _rectify(ref_bgr, other_bgr, cam, dist, (R_ref, R_other), K_rect, canvas)
+    grey = [cv2.cvtColor(r, cv2.COLOR_BGR2GRAY) for r in rect]
+    disp = _sgbm(grey[0], grey[1], lo, num, cfg)
     disp[~inside[0]] = 0.0
     # The match must land inside the other image too (the black margin matches anything).
     v, u = np.nonzero(disp > 0)
@@ -168,12 +187,42 @@ def compute_depth(ref_bgr: np.ndarray, other_bgr: np.ndarray, camera: CameraMode
     disp[v[~ok], u[~ok]] = 0.0
     f = K_rect[0, 0]
     depth = np.where(disp >= cfg.min_disparity_px, f * baseline / np.maximum(disp, 1e-6), 0)
-    depth[depth > cfg.max_depth_baselines * baseline] = 0.0
+    depth[~_precise(depth, K_rect, baseline, cfg.max_depth_baselines)] = 0.0
     return DepthMap(depth.astype(np.float32), rect[0], K_rect, R_ref, pair_stamp, T)
 
 
-def _sgbm(left: np.ndarray, right: np.ndarray, cfg: StereoConfig) -> np.ndarray:
-    lo, num = _disparity_range(left, right, cfg)
+def _precise(depth: np.ndarray, K_rect: FloatArray, baseline: float,
+             max_baselines: float) -> npt.NDArray[np.bool_]:
+    """
+    Pixels whose range is at most ``max_baselines`` times the baseline seen across their ray.
+
+    Depth precision goes with the baseline perpendicular to the ray, B sin(phi), phi the angle
+    between ray and baseline (the rectified x axis): a fixed cap on z would keep pixels near
+    the epipole of a pair that moved forward, where the parallax vanishes.
+    """
+    h, w = depth.shape
+    x = (np.arange(w) - K_rect[0, 2]) / K_rect[0, 0]
+    y = (np.arange(h)[:, None] - K_rect[1, 2]) / K_rect[1, 1]
+    across = np.sqrt(1.0 + y * y)  # |(y, z)| / z
+    rng = np.sqrt(across * across + x * x)  # range / z
+    # range <= N B sin(phi)  <=>  z range^2 <= N B |(y, z)|  (per unit z)
+    return depth * rng * rng <= max_baselines * baseline * across
+
+
+def _rectify(ref: np.ndarray, other: np.ndarray, cam: CameraModel, dist: FloatArray,
+             rotations: tuple[FloatArray, FloatArray], K_rect: FloatArray,
+             canvas: tuple[int, int]) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Both images rectified, and where each rectified pixel comes from inside its image."""
+    rect, inside = [], []
+    for img, R in zip((ref, other), rotations):
+        mx, my = cv2.initUndistortRectifyMap(cam.K, dist, R, K_rect, canvas, cv2.CV_32FC1)
+        rect.append(cv2.remap(img, mx, my, cv2.INTER_LINEAR))
+        inside.append((mx >= 0) & (my >= 0) & (mx <= cam.width - 1) & (my <= cam.height - 1))
+    return rect, inside
+
+
+def _sgbm(left: np.ndarray, right: np.ndarray, lo: int, num: int,
+          cfg: StereoConfig) -> np.ndarray:
     b = cfg.block_size
     sgbm = cv2.StereoSGBM_create(
         minDisparity=lo, numDisparities=num, blockSize=b, P1=8 * b * b, P2=32 * b * b,
