@@ -18,8 +18,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from absscale_ros.core import (lines, quads, sheet_candidates, sheet_partial, sheet_stub, sides,
-                               targets)
+from absscale_ros.core import (lines, quads, sheet_candidates, sheet_checks, sheet_partial,
+                               sheet_stub, sides, targets)
 
 Array = npt.NDArray[np.float64]
 FIRST_PASS_SUPPORT = 0.25  # a side less supported after the widest refinement pass: no sheet
@@ -247,7 +247,7 @@ def _accept_quads(image_bgr: npt.NDArray[np.uint8], quads_full: list[Array], ban
     """
     # Rough corners: a looser aspect test here, the exact one after refinement.
     quads_full = [q for q in quads_full
-                  if _aspect_ok(q, image_bgr.shape, cfg, K, cfg.rough_aspect_tol)]
+                  if sheet_checks.aspect_ok(q, image_bgr.shape, cfg, K, cfg.rough_aspect_tol)]
     for quad, refined in zip(quads_full, _refine_quads(image_bgr, quads_full, band)):
         if refined is None or any(
                 np.hypot(*(quad[:, None] - f[1][None]).T).min(axis=0).max() <= band
@@ -255,8 +255,8 @@ def _accept_quads(image_bgr: npt.NDArray[np.uint8], quads_full: list[Array], ban
             continue  # or another mask's outline of a sheet already found
         # (``_passes`` applies the floor-tile test to the refined corners: refining every
         # candidate together costs less than testing the rough ones first)
-        if _big_enough(refined[0], image_bgr.shape, cfg) and \
-                _passes(image_bgr, refined, cfg, K) and \
+        if sheet_checks.big_enough(refined[0], image_bgr.shape, cfg) and \
+                sheet_checks.passes(image_bgr, refined, cfg, K) and \
                 all(np.abs(refined[0] - f[1]).max() > 4.0 for f in found):
             found.append((float(refined[1].mean()), refined[0], refined[0], None))
 
@@ -283,8 +283,8 @@ def _accept_partial(image_bgr: npt.NDArray[np.uint8], groups: list[list[sheet_pa
     # A corner beyond the border has no occluder to show for the cut (tiles).
     groups = [[h for h in group
                if not sheet_candidates.touches_border(h.corners, image_bgr.shape, band)
-               and (not rough_aspect
-                    or _aspect_ok(h.corners, image_bgr.shape, cfg, K, cfg.rough_aspect_tol))]
+               and (not rough_aspect or sheet_checks.aspect_ok(
+                   h.corners, image_bgr.shape, cfg, K, cfg.rough_aspect_tol))]
               for group in groups]
     hyps = [h for g in groups for h in g]
     rough = [sheet_partial.rough_sides(h) for h in hyps]
@@ -298,9 +298,9 @@ def _accept_partial(image_bgr: npt.NDArray[np.uint8], groups: list[list[sheet_pa
         for hyp in group:
             sides_out = next(refined)
             out = None if sides_out is None else finish(hyp, sides_out)
-            if out is None or not _big_enough(out[5], image_bgr.shape, cfg) or \
-                    not _passes(image_bgr, out[:5], cfg, K, hyp.seen_ends) or \
-                    not _covered(image_bgr, out[0][3], out[3], cfg):
+            if out is None or not sheet_checks.big_enough(out[5], image_bgr.shape, cfg) or \
+                    not sheet_checks.passes(image_bgr, out[:5], cfg, K, hyp.seen_ends) or \
+                    not sheet_checks.covered(image_bgr, out[0][3], out[3], cfg):
                 continue
             support = float(out[1].mean())
             vs = np.array([support] * 3 + [0.5 * support * float(hyp.seen_frac.min())])
@@ -315,74 +315,6 @@ def _guess_K(focal_frac: float, shape: tuple[int, ...]) -> Array:
     h, w = shape[:2]
     f = focal_frac * max(h, w)
     return np.array([[f, 0.0, (w - 1) / 2.0], [0.0, f, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
-
-
-def _covered(image_bgr: npt.NDArray[np.uint8], corner: Array, inside: Array,
-             cfg: SheetConfig) -> bool:
-    """Return True when something other than the sheet's colour lies on the hidden corner."""
-    h, w = image_bgr.shape[:2]
-    u, v = int(round(corner[0])), int(round(corner[1]))
-    patch = image_bgr[max(v - 2, 0):min(v + 3, h), max(u - 2, 0):min(u + 3, w)].reshape(-1, 3)
-    if not len(patch):
-        return False
-    ref = np.median(inside, axis=0)
-    return bool(np.linalg.norm(np.median(patch, axis=0) - ref) >= cfg.min_contrast)
-
-
-def _big_enough(outline: Array, shape: tuple[int, ...], cfg: SheetConfig) -> bool:
-    """Return True when the seen outline (K, 2) covers at least ``min_area_frac`` of the image."""
-    area = cv2.contourArea(outline.astype(np.float32))
-    return bool(area >= cfg.min_area_frac * shape[0] * shape[1])
-
-
-def _passes(image_bgr: npt.NDArray[np.uint8], refined: Refined, cfg: SheetConfig,
-            K: Array | None, seen_ends: Array | None = None) -> bool:
-    """
-    Apply the support, contrast, one-colour, aspect and floor-tile tests to a refined
-    quadrilateral (``seen_ends`` (4, 2, 2): the seen part of each side, default all of it).
-    """
-    corners, supports, steps, inside, outside = refined
-    if supports.min() < cfg.min_support or steps.min() < cfg.min_contrast:
-        return False  # not a sheet on a different surface all round
-    if not _one_colour(inside, cfg.max_inside_spread, cfg.max_saturation):
-        return False  # four edges of different things (a table top, its legs, the floor)
-    if not _one_colour(outside, cfg.max_outside_spread, 1.0):
-        return False  # a sheet lies on one surface: wall between table legs, floor below
-    if not _aspect_ok(corners, image_bgr.shape, cfg, K, cfg.aspect_tol):
-        return False
-    return not _tile(image_bgr, corners, cfg, seen_ends)
-
-
-def _tile(image_bgr: npt.NDArray[np.uint8], corners: Array, cfg: SheetConfig,
-          seen_ends: Array | None = None) -> bool:
-    """
-    Return True when the colour recovers beyond too many sides: a tile between grout. Looked
-    for at two reaches: a blurred grout line is wider than the first.
-    """
-    ends = np.stack([corners, np.roll(corners, -1, axis=0)], axis=1)
-    ends = ends if seen_ends is None else seen_ends
-    side_px = float(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1).mean())
-    ls = np.array([lines.line_through(a, b, corners.mean(axis=0)) for a, b in ends])
-    ridges = sides.ridge_ratio(image_bgr, ls, ends, max(8.0, 0.08 * side_px), reaches=(1.0, 2.0))
-    return int((ridges > cfg.ridge_ratio).sum()) > cfg.max_ridges
-
-
-def _aspect_ok(corners: Array, shape: tuple[int, ...], cfg: SheetConfig, K: Array | None,
-               tol: float) -> bool:
-    """Return True when the rectangle imaged as ``corners`` has the sheet's aspect (+-tol)."""
-    h, w = shape[:2]
-    aspect = lines.rectangle_aspect(corners, K, cfg.focal_frac * max(h, w),
-                                    np.array([(w - 1) / 2.0, (h - 1) / 2.0]))
-    return abs(aspect / cfg.model().aspect - 1.0) <= tol
-
-
-def _one_colour(bgr: Array, max_spread: float, max_saturation: float) -> bool:
-    """Return True when (4, 3) side colours are one colour, no more saturated than given."""
-    ref = np.median(bgr, axis=0)
-    level = max(float(ref.max()), 1.0)
-    spread = float(np.linalg.norm(bgr - ref, axis=1).max())
-    return spread <= max_spread * level and \
-        float(ref.max() - ref.min()) <= max_saturation * level
 
 
 def _detection(f: Found, model: targets.SheetModel) -> targets.TargetDetection:

@@ -1,0 +1,85 @@
+"""
+The sheet detector's tests of a refined candidate: support and contrast, one colour inside and
+outside, the sheet's aspect, not a floor tile between grout lines, big enough, and for a
+hidden corner something lying on it.
+"""
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from absscale_ros.core import lines, sides
+
+if TYPE_CHECKING:
+    from absscale_ros.core.detect_sheet import SheetConfig
+
+Array = npt.NDArray[np.float64]
+
+
+def covered(image_bgr: npt.NDArray[np.uint8], corner: Array, inside: Array,
+            cfg: 'SheetConfig') -> bool:
+    """Return True when something other than the sheet's colour lies on the hidden corner."""
+    h, w = image_bgr.shape[:2]
+    u, v = int(round(corner[0])), int(round(corner[1]))
+    patch = image_bgr[max(v - 2, 0):min(v + 3, h), max(u - 2, 0):min(u + 3, w)].reshape(-1, 3)
+    if not len(patch):
+        return False
+    ref = np.median(inside, axis=0)
+    return bool(np.linalg.norm(np.median(patch, axis=0) - ref) >= cfg.min_contrast)
+
+
+def big_enough(outline: Array, shape: tuple[int, ...], cfg: 'SheetConfig') -> bool:
+    """Return True when the seen outline (K, 2) covers at least ``min_area_frac`` of the image."""
+    area = cv2.contourArea(outline.astype(np.float32))
+    return bool(area >= cfg.min_area_frac * shape[0] * shape[1])
+
+
+def passes(image_bgr: npt.NDArray[np.uint8], refined: sides.Refined, cfg: 'SheetConfig',
+           K: Array | None, seen_ends: Array | None = None) -> bool:
+    """
+    Apply the support, contrast, one-colour, aspect and floor-tile tests to a refined
+    quadrilateral (``seen_ends`` (4, 2, 2): the seen part of each side, default all of it).
+    """
+    corners, supports, steps, inside, outside = refined
+    if supports.min() < cfg.min_support or steps.min() < cfg.min_contrast:
+        return False  # not a sheet on a different surface all round
+    if not one_colour(inside, cfg.max_inside_spread, cfg.max_saturation):
+        return False  # four edges of different things (a table top, its legs, the floor)
+    if not one_colour(outside, cfg.max_outside_spread, 1.0):
+        return False  # a sheet lies on one surface: wall between table legs, floor below
+    if not aspect_ok(corners, image_bgr.shape, cfg, K, cfg.aspect_tol):
+        return False
+    return not tile(image_bgr, corners, cfg, seen_ends)
+
+
+def tile(image_bgr: npt.NDArray[np.uint8], corners: Array, cfg: 'SheetConfig',
+         seen_ends: Array | None = None) -> bool:
+    """
+    Return True when the colour recovers beyond too many sides: a tile between grout. Looked
+    for at two reaches: a blurred grout line is wider than the first.
+    """
+    ends = np.stack([corners, np.roll(corners, -1, axis=0)], axis=1)
+    ends = ends if seen_ends is None else seen_ends
+    side_px = float(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1).mean())
+    ls = np.array([lines.line_through(a, b, corners.mean(axis=0)) for a, b in ends])
+    ridges = sides.ridge_ratio(image_bgr, ls, ends, max(8.0, 0.08 * side_px), reaches=(1.0, 2.0))
+    return int((ridges > cfg.ridge_ratio).sum()) > cfg.max_ridges
+
+
+def aspect_ok(corners: Array, shape: tuple[int, ...], cfg: 'SheetConfig', K: Array | None,
+              tol: float) -> bool:
+    """Return True when the rectangle imaged as ``corners`` has the sheet's aspect (+-tol)."""
+    h, w = shape[:2]
+    aspect = lines.rectangle_aspect(corners, K, cfg.focal_frac * max(h, w),
+                                    np.array([(w - 1) / 2.0, (h - 1) / 2.0]))
+    return abs(aspect / cfg.model().aspect - 1.0) <= tol
+
+
+def one_colour(bgr: Array, max_spread: float, max_saturation: float) -> bool:
+    """Return True when (4, 3) side colours are one colour, no more saturated than given."""
+    ref = np.median(bgr, axis=0)
+    level = max(float(ref.max()), 1.0)
+    spread = float(np.linalg.norm(bgr - ref, axis=1).max())
+    return spread <= max_spread * level and \
+        float(ref.max() - ref.min()) <= max_saturation * level
