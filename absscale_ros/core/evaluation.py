@@ -4,8 +4,8 @@ Accuracy of a metric reconstruction against simulator ground truth (the paper's 
 A reconstructed landmark's true point is found without any alignment: project it into a
 keyframe with that keyframe's reconstructed pose, and take the ground-truth surface point
 behind that pixel (the simulator re-renders it). Several keyframes must agree, which rejects
-landmarks hidden in one of them, and their median damps each one's reprojection error. Lengths between landmarks then compare with lengths between
-their true points, in mm per metre.
+landmarks hidden in one of them, and their median damps each one's reprojection error.
+Lengths between landmarks then compare with lengths between their true points, in mm per metre.
 """
 from dataclasses import dataclass
 from typing import Callable
