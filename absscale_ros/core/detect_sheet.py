@@ -23,7 +23,8 @@ from absscale_ros.core import (lines, quads, sheet_candidates, sheet_checks, she
 
 Array = npt.NDArray[np.float64]
 FIRST_PASS_SUPPORT = 0.25  # a side less supported after the widest refinement pass: no sheet
-# Refinement bands after the widest, px: one fine pass is as exact as two on the tuning bags.
+# Refinement bands after the widest, px: for a whole quad one fine pass is as exact as two on
+# the tuning bags (sides seen in part need both: ``sheet_partial.FINE_BANDS``).
 FINE_BANDS = (3.0,)
 STUB_MAX_HYPS = 8  # stub hypotheses refined per frame at most (whitest, longest sides first)
 
@@ -265,7 +266,7 @@ def _accept_partial(image_bgr: npt.NDArray[np.uint8], groups: list[list[sheet_pa
                     finish: Callable[[sheet_partial.Partial, sides.Refined], Refined6 | None],
                     band: float, cfg: SheetConfig, K: Array | None, found: list[Found],
                     rough_aspect: bool = True, checked: npt.NDArray[np.intp] | None = None,
-                    fine_bands: tuple[float, ...] = FINE_BANDS,
+                    fine_bands: tuple[float, ...] = sheet_partial.FINE_BANDS,
                     screen: Callable[[sheet_partial.Partial, sides.Refined], bool] | None = None
                     ) -> None:
     """

@@ -29,7 +29,7 @@ FIRST_PASS_SUPPORT = 0.25  # a seen side less supported after the widest pass: n
 # Sides checked after that pass: not the stub (2), whose wide profiles near the corner still
 # catch the whole side's edge.
 CHECKED = np.array([0, 1, 3])
-FINE_BANDS = (4.0, 3.0)  # refinement passes after the widest: a stub needs the middle one
+FINE_BANDS = sheet_partial.FINE_BANDS  # refinement passes after the widest
 SCREEN_SLACK = 3.0  # ``finish``'s slack after the widest pass: half the hypotheses go there
 
 
