@@ -1,0 +1,79 @@
+"""
+Time ``absscale run`` on a bag for one or more code trees, interleaved, so that a shared,
+noisy machine loads them alike (the ratio is the figure; absolute seconds drift with load).
+
+  python test/bench/run_speed.py BAG --config outdoor_cube --tree base=/tmp/base \
+      --tree new=. [--processes] [--live] [--rounds 2]
+
+Per run: wall time of the command, the replay's wall time and peak RSS from report.json, CPU
+time of the run and its node processes, and for --live the frames each node dropped and the
+keyframe-to-/scaled_cloud latency.
+"""
+import argparse
+import json
+import os
+from pathlib import Path
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+
+
+def run_once(tree: Path, bag: str, config: str, extra: list[str]) -> dict:
+    with tempfile.TemporaryDirectory(prefix='run_speed_') as out:
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        t0 = time.monotonic()
+        done = subprocess.run(
+            [sys.executable, '-m', 'absscale_ros.cli', 'run', bag, '--config', config,
+             '--out', out, '--quiet', *extra], cwd=tree, capture_output=True, text=True,
+            env={**os.environ, 'PYTHONPATH': str(tree)})
+        wall = time.monotonic() - t0
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        path = Path(out) / 'report.json'
+        report = json.loads(path.read_text()) if path.exists() else {}
+    nodes = report.get('nodes', {})
+    return {
+        'exit': done.returncode, 'wall_s': round(wall, 1),
+        'replay_s': report.get('wall_time_s'),
+        'cpu_s': round(after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime, 1),
+        'peak_rss_mb': report.get('peak_rss_mb'),
+        'frames_decoded': nodes.get('frame_ingest', {}).get('frames_decoded'),
+        'frames_missing': nodes.get('frame_ingest', {}).get('frames_missing'),
+        'detector_frames': nodes.get('vertex_detector', {}).get('frames'),
+        'keyframes': nodes.get('keyframe_selector', {}).get('keyframes'),
+        'sfm_keyframes_in': nodes.get('sfm', {}).get('keyframes_in'),
+        'scale': nodes.get('scale', {}).get('factor'),
+        'latency_s': report.get('latency_s'),
+        'last_line': (done.stdout.strip().splitlines() or [''])[-1][:200],
+    }
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    parser.add_argument('bag')
+    parser.add_argument('--config', required=True)
+    parser.add_argument('--tree', action='append', required=True,
+                        help='NAME=PATH of a source tree (repeat; the first is the baseline)')
+    parser.add_argument('--rounds', type=int, default=1)
+    parser.add_argument('--processes', action='store_true')
+    parser.add_argument('--live', action='store_true')
+    args = parser.parse_args()
+    trees = [t.split('=', 1) for t in args.tree]
+    extra = (['--processes'] if args.processes else []) + (['--live'] if args.live else [])
+    results: dict[str, list[dict]] = {name: [] for name, _ in trees}
+    for _ in range(args.rounds):
+        for name, path in trees:
+            res = run_once(Path(path).resolve(), str(Path(args.bag).resolve()), args.config,
+                           extra)
+            results[name].append(res)
+            print(json.dumps({'tree': name, **res}), flush=True)
+    base = trees[0][0]
+    for name, _ in trees[1:]:
+        ratio = [n['wall_s'] / b['wall_s'] for n, b in zip(results[name], results[base])]
+        print(f'{name} / {base} wall time: ' + ', '.join(f'{r:.2f}' for r in ratio))
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
