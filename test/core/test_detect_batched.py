@@ -5,7 +5,7 @@ import sys
 import cv2
 import numpy as np
 
-from absscale_ros.core import detect_cube, lines, sides
+from absscale_ros.core import detect, detect_cube, detect_sheet, lines, sides
 
 sys.path.insert(0, str(Path(__file__).parent))
 import synth_targets as st  # noqa: E402
@@ -65,3 +65,17 @@ def test_hough_lines_equal_one_vote_per_point_set():
         rhos.append(float(p0 @ normal) + rng.normal(0.0, 2.0))
     batched = lines.hough_lines(sets, np.array(thetas), np.array(rhos))
     assert batched == [lines.hough_line(p, t, r) for p, t, r in zip(sets, thetas, rhos)]
+
+
+def test_auto_mode_shares_the_half_size_image_without_changing_detections():
+    R, t = st.cube_pose(35, 25, 5.0, offset_px=(-300, 0))
+
+    def sheet(img):
+        st.fill(img, st.sheet_corners((1000, 380), 220, aspect=279.4 / 215.9), (235, 238, 240))
+    img = st.render_cube(np.random.default_rng(9), R, t, extra=sheet)[0]
+    res = detect.detect(img, detect.DetectConfig(target='auto'))
+    alone = (detect_cube.detect_cubes(img, detect_cube.CubeConfig())
+             + detect_sheet.detect_sheets(img, detect_sheet.SheetConfig(sheet='letter')))
+    assert [d.target_type for d in res.detections] == ['cube', 'sheet']
+    for shared, own in zip(res.detections, alone):
+        np.testing.assert_array_equal(shared.vertices_px, own.vertices_px)
