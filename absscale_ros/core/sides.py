@@ -134,8 +134,9 @@ def fit_lines(pts: Array, weights: Array, outward: Array, scale_px: Array,
         sw = np.maximum(w.sum(axis=1), 1e-12)
         mx, my = (w * x).sum(axis=1) / sw, (w * y).sum(axis=1) / sw
         dx, dy = x - mx[:, None], y - my[:, None]
-        cxx, cyy = (w * dx * dx).sum(axis=1), (w * dy * dy).sum(axis=1)
-        cxy = (w * dx * dy).sum(axis=1)
+        wdx = w * dx  # (w * dx * dx evaluates as (w * dx) * dx: the same sums)
+        cxx, cyy = (wdx * dx).sum(axis=1), (w * dy * dy).sum(axis=1)
+        cxy = (wdx * dy).sum(axis=1)
         phi = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)  # direction of largest spread
         nx, ny = -np.sin(phi), np.cos(phi)
         flip = np.where(nx * outward[:, 0] + ny * outward[:, 1] < 0.0, -1.0, 1.0)
