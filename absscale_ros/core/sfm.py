@@ -123,10 +123,11 @@ class IncrementalSfm:
 
     def _forget_descriptors(self) -> None:
         """
-        Drop the descriptors (~1 MB a keyframe) of keyframes no match can reach any more: all
-        but the newest of the current segment (registration, relocalisation and the local map
-        look no further back) and all of the finished segments, whose iSAM2 state goes too
-        (``finish`` adjusts them from their maps).
+        Drop the features (descriptors ~1 MB a keyframe, keypoints and their colours
+        ~70 KB; the landmark of each keypoint stays) of keyframes no match can reach any
+        more: all but the newest of the current segment (registration, relocalisation and the
+        local map look no further back) and all of the finished segments, whose iSAM2 state
+        goes too (``finish`` adjusts them from their maps).
         """
         keep = max(self.cfg.match_window, self.cfg.relocalise_window,
                    self.cfg.local_cfg.keyframes, self.cfg.max_pending)
@@ -137,9 +138,7 @@ class IncrementalSfm:
             upto = len(ids) if seg is not self.current else max(0, len(ids) - keep)
             for kf_id in ids[seg.forgotten:upto]:
                 kf = seg.map.keyframes[kf_id]
-                d = kf.features.descriptors  # a new empty array: a [:0] view keeps the buffer
-                kf.features = replace(kf.features, descriptors=np.empty((0, *d.shape[1:]),
-                                                                        d.dtype))
+                kf.features = _forgotten(kf.features)
             seg.forgotten = max(seg.forgotten, upto)
             if seg is not self.current and not seg.released:
                 seg.graph.release()  # a finished segment's iSAM2 (~100 MB) until ``finish``
@@ -313,3 +312,10 @@ class IncrementalSfm:
                                       b.features.points_px[free[:, 1]], self.cfg.twoview_cfg)
         self._add_points(m, a, b, free[ok], pts[ok])
         return int(ok.sum())
+
+
+def _forgotten(f: feat.Features) -> feat.Features:
+    """Empty copies of a keyframe's features (new arrays: a [:0] view would keep the buffer)."""
+    d = f.descriptors
+    return feat.Features(np.empty((0, 2)), np.empty((0, 2)), np.empty((0, *d.shape[1:]), d.dtype),
+                         np.empty((0, 3), np.uint8))

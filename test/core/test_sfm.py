@@ -54,6 +54,8 @@ def test_windowed_smoother_on_a_longer_orbit() -> None:
     assert result.keyframes == 12 and result.reprojection_rms_px <= 1.0
     kept = [len(engine.current.map.keyframes[i].features.descriptors) > 0 for i in ids]
     assert kept == [False] * 8 + [True] * 4  # the newest 4 can still be matched
+    points = [len(engine.current.map.keyframes[i].features.points_px) > 0 for i in ids]
+    assert points == kept  # and only they keep their keypoints
     gt = seq.T_world_cams[ids, :3, 3]
     s, R, t = align.umeyama(T[:, :3, 3], gt)
     length_m = float(np.sum(np.linalg.norm(np.diff(gt, axis=0), axis=1)))
