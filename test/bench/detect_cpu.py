@@ -1,0 +1,72 @@
+"""
+CPU time per frame of the vertex detector against a baseline tree, interleaved frame by frame
+(one OpenCV thread), so both see the same load: the ratio is the figure.
+
+  python test/bench/detect_cpu.py --base /tmp/base_tree /tmp/d5/*.mcap
+
+The baseline's ``absscale_ros`` is copied under another package name (its absolute imports
+renamed) so both detectors live in one process. Accuracy is `absscale bench detect`'s job.
+"""
+import argparse
+import importlib
+from pathlib import Path
+import shutil
+import sys
+import tempfile
+import time
+
+from absscale_ros import bagio, conversions
+from absscale_ros.core import detect as new
+import cv2
+import numpy as np
+
+
+def load_base(tree: Path, into: Path) -> object:
+    """``core.detect`` of the package in ``tree``, imported as ``absscale_base``."""
+    shutil.copytree(tree / 'absscale_ros', into / 'absscale_base')
+    for py in (into / 'absscale_base').rglob('*.py'):
+        py.write_text(py.read_text().replace('absscale_ros', 'absscale_base'))
+    sys.path.insert(0, str(into))
+    return importlib.import_module('absscale_base.core.detect')
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    parser.add_argument('bags', nargs='+', help='simulator bags (BAG.gt.json beside each)')
+    parser.add_argument('--base', required=True, type=Path, help='baseline source tree')
+    args = parser.parse_args()
+    cv2.setNumThreads(1)
+    import json
+    times: dict[tuple[str, str], list[float]] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        old = load_base(args.base, Path(tmp))
+        for path in args.bags:
+            gt = json.loads(Path(path + '.gt.json').read_text())
+            K = np.array(gt['camera']['K'], float)
+            sheet = gt['scene']['variant']['target']
+            sheet = 'letter' if sheet == 'cube' else sheet
+            with bagio.open_bag(path) as reader:
+                for k, raw in enumerate(reader.messages([gt['bag']['image_topic']])):
+                    msg = reader.deserialize(raw)
+                    img = conversions.compressed_msg_to_bgr(msg) \
+                        if raw.msgtype.endswith('CompressedImage') \
+                        else conversions.image_msg_to_bgr(msg)
+                    order = (('base', old), ('new', new))
+                    for target in (sheet, 'cube', 'auto'):
+                        for name, mod in order if k % 2 else order[::-1]:
+                            cfg = mod.DetectConfig(target=target)
+                            t0 = time.process_time()
+                            mod.detect(img, cfg, K)
+                            kind = target if target in ('cube', 'auto') else 'sheet'
+                            times.setdefault((name, kind), []).append(
+                                1e3 * (time.process_time() - t0))
+    for kind in ('sheet', 'cube', 'auto'):
+        b, n = np.array(times[('base', kind)]), np.array(times[('new', kind)])
+        bm, bp, nm, np95 = np.median(b), np.percentile(b, 95), np.median(n), np.percentile(n, 95)
+        print(f'{kind:6s} base median {bm:6.2f} p95 {bp:6.2f} ms | new median {nm:6.2f} '
+              f'p95 {np95:6.2f} ms | ratio {nm / bm:.2f} / {np95 / bp:.2f} (n={len(b)})')
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
