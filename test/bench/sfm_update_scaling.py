@@ -1,0 +1,108 @@
+"""
+SfM update time against map size (issue #6: median update <= 250 ms up to 300 keyframes).
+
+``python test/bench/sfm_update_scaling.py BAG [--every 10] [--bucket 50]``: every ``--every``-th
+frame of ``BAG`` is a keyframe (so a long bag gives hundreds, in one segment if it tracks),
+with its ground-truth vertices (+0.3 px) when ``BAG.gt.json`` is beside it. Prints the CPU time
+of ``IncrementalSfm.add_keyframe`` (one OpenCV thread; decoding outside) per bucket of map
+size, the final batch, and the camera-centre RMSE after Sim(3). With ``--pythonpath A B`` it
+runs itself once per path side by side (same load) and prints the buckets in one table, e.g.
+the code at HEAD (a ``git worktree``) against the working tree.
+"""
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+
+import cv2
+import numpy as np
+
+
+def run(bag: str, every: int, limit: int) -> dict:
+    from absscale_ros.core import sfm
+    from absscale_ros.tools import bench_sfm
+    cv2.setNumThreads(1)
+    args = argparse.Namespace(keyframes_from=None, select=False, every=every)
+    camera, gt, frames = bench_sfm._from_bag(bag, args)
+    engine = sfm.IncrementalSfm(camera, sfm.SfmConfig(), np.random.default_rng(0))
+    rng = np.random.default_rng(0)
+    rows, poses, truth = [], {}, {}
+    for kf_id, (stamp, img, T, fr) in enumerate(frames):
+        if kf_id >= limit:
+            break
+        vertices, truth[kf_id] = bench_sfm._vertices(fr, gt, rng, 0.3)
+        poses[kf_id] = T
+        c0 = time.process_time()
+        r = engine.add_keyframe(stamp, img, vertices)
+        rows.append((r.keyframes, 1e3 * (time.process_time() - c0), r.status))
+        print(kf_id, *rows[-1], file=sys.stderr, flush=True)  # progress
+    c0 = time.process_time()
+    engine.finish()
+    finish_ms = 1e3 * (time.process_time() - c0)
+    score = bench_sfm.score(engine, poses, truth, gt)
+    return {'rows': rows, 'finish_ms': finish_ms,
+            **{k: score.get(k) for k in ('segments', 'registered', 'landmarks',
+                                         'centre_rmse_pct', 'reprojection_rms_px', 'vertices')}}
+
+
+def buckets(rows: list, size: int) -> dict[int, tuple[int, float, float]]:
+    """Map size bucket (keyframes of the current segment, floor to ``size``) -> count,
+    median and 95th percentile update CPU ms."""
+    out = {}
+    kf = np.array([r[0] for r in rows])
+    ms = np.array([r[1] for r in rows])
+    for b in range(0, int(kf.max(initial=0)) + 1, size):
+        sel = ms[(kf >= b) & (kf < b + size)]
+        if len(sel):
+            out[b] = (len(sel), float(np.median(sel)), float(np.percentile(sel, 95)))
+    return out
+
+
+def table(results: dict[str, dict], size: int) -> str:
+    lines = [f'{"map keyframes":<14}' + ''.join(f'{name[-24:]:>36}' for name in results),
+             f'{"":<14}' + f'{"n   median  p95 update CPU ms":>36}' * len(results)]
+    bs = [buckets(r['rows'], size) for r in results.values()]
+    for b in sorted(set().union(*bs)):
+        cells = ''.join(f'{"":>36}' if b not in x else
+                        f'{x[b][0]:>22} {x[b][1]:>6.0f} {x[b][2]:>6.0f}' for x in bs)
+        lines.append(f'{b:>4}-{b + size - 1:<9}' + cells)
+    for key in ('all', 'finish_ms', 'segments', 'registered', 'landmarks', 'centre_rmse_pct',
+                'reprojection_rms_px', 'vertices'):
+        vals = []
+        for r in results.values():
+            ms = np.array([x[1] for x in r['rows']])
+            v = (f'{len(ms)} {np.median(ms):.0f} {np.percentile(ms, 95):.0f} '
+                 f'(total {ms.sum() / 1e3:.1f} s)') if key == 'all' else r.get(key)
+            vals.append(f'{v:.4g}' if isinstance(v, float) else str(v))
+        lines.append(f'{key:<14}' + ''.join(f'{v:>36}' for v in vals))
+    return '\n'.join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    parser.add_argument('bag')
+    parser.add_argument('--every', type=int, default=10, help='keyframe = every Nth frame')
+    parser.add_argument('--limit', type=int, default=10**9, help='stop after N keyframes')
+    parser.add_argument('--bucket', type=int, default=50, help='map-size bucket, keyframes')
+    parser.add_argument('--pythonpath', nargs='+', default=[],
+                        help='run once per PYTHONPATH (in parallel) and compare')
+    parser.add_argument('--json', action='store_true', help='print the raw result as JSON')
+    args = parser.parse_args(argv)
+    if not args.pythonpath:
+        result = run(args.bag, args.every, args.limit)
+        print(json.dumps(result) if args.json else table({args.bag: result}, args.bucket))
+        return 0
+    cmd = [sys.executable, os.path.abspath(__file__), args.bag, '--every', str(args.every),
+           '--limit', str(args.limit), '--json']
+    procs = {p: subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True,
+                                 env={**os.environ, 'PYTHONPATH': p, 'OMP_NUM_THREADS': '1'})
+             for p in args.pythonpath}
+    results = {p: json.loads(proc.communicate()[0]) for p, proc in procs.items()}
+    print(table(results, args.bucket))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
