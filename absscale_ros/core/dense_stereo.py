@@ -38,6 +38,7 @@ class StereoConfig:
     min_disparity_px: float = 2.0  # smaller disparities (far, imprecise) are discarded
     max_depth_baselines: float = 15.0  # deeper than this many baselines: too imprecise, dropped
     max_canvas_grow: float = 1.5  # rectified image at most this much larger than the keyframe
+    widen_left: bool = True  # widen the canvas by SGBM's blind left margin (disparity range)
 
 
 @dataclass
@@ -85,9 +86,7 @@ def pair_quality(T_world_ref: FloatArray, T_world_other: FloatArray, depth_m: fl
     if baseline < 1e-9 or np.degrees(np.arccos(cos)) > cfg.max_angle_deg or \
             abs(c[2]) / baseline > cfg.max_forward_fraction:
         return None
-    # Depth precision goes with the baseline across the view: a forward step counts less.
-    across = baseline * np.sqrt(max(1.0 - (c[2] / baseline) ** 2, 1e-6))
-    return abs(np.log(across / depth_m / cfg.target_baseline_ratio))
+    return abs(np.log(baseline / depth_m / cfg.target_baseline_ratio))
 
 
 def _disparity_range(left: np.ndarray, right: np.ndarray, cfg: StereoConfig) -> tuple[int, int]:
@@ -130,9 +129,10 @@ def _rectified_camera(K: FloatArray, R_rect: FloatArray, size: tuple[int, int],
     Intrinsics and canvas (at most ``max_grow`` times the keyframe) of the rectified reference.
 
     A pair that moved mostly forward looks near its epipole, where rectification stretches
-    the image without bound: the focal length shrinks by the typical stretch, so the view
-    keeps its resolution, and rays stretched ``max_grow`` times more than that (or within
-    ``_MIN_RAY_DEG`` of the baseline: no parallax) are left out. A sideways pair is unchanged.
+    the image without bound: the focal length shrinks as far as the canvas needs, at most by
+    the typical stretch (so the view keeps its resolution), and rays stretched ``max_grow``
+    times more than that (or within ``_MIN_RAY_DEG`` of the baseline: no parallax) are left
+    out. A sideways pair keeps its focal length (precision).
     """
     w, h = size
     u, v = np.meshgrid(np.linspace(0, w - 1, 17), np.linspace(0, h - 1, 9))
@@ -143,8 +143,11 @@ def _rectified_camera(K: FloatArray, R_rect: FloatArray, size: tuple[int, int],
     stretch = (ray[2, usable] / rect[2, usable]) ** 1.5  # rectified / original pixel density
     typical = max(1.0, float(np.median(stretch)))
     keep = np.flatnonzero(usable)[stretch <= max_grow * typical]
-    f = float(K[0, 0]) / typical
-    xy = f * rect[:2, keep] / rect[2, keep]
+    xy = rect[:2, keep] / rect[2, keep]  # at unit focal length
+    # Shrink only as much as the canvas needs, and no more than the typical stretch.
+    need = float(np.max((xy.max(1) - xy.min(1)) * K[0, 0] / (max_grow * np.array([w, h]))))
+    f = float(K[0, 0]) / min(max(need, 1.0), typical)
+    xy *= f
     lo, hi = xy.min(1), xy.max(1)
     span = np.minimum(hi - lo, np.array([w, h]) * max_grow)
     centre = np.clip(np.median(xy, axis=1), lo + span / 2, hi - span / 2)
@@ -173,11 +176,12 @@ def compute_depth(ref_bgr: np.ndarray, other_bgr: np.ndarray, camera: CameraMode
     lo, num = _disparity_range(grey[0], grey[1], cfg)
     # SGBM leaves the first lo + num columns without a disparity: widen both canvases to the
     # left by that much, so the whole reference is matched (the other image has more there).
-    K_rect = K_rect.copy()
-    K_rect[0, 2] += lo + num
-    canvas = (canvas[0] + lo + num, canvas[1])
-    rect, inside = _rectify(ref_bgr, other_bgr, cam, dist, (R_ref, R_other), K_rect, canvas)
-    grey = [cv2.cvtColor(r, cv2.COLOR_BGR2GRAY) for r in rect]
+    if cfg.widen_left:
+        K_rect = K_rect.copy()
+        K_rect[0, 2] += lo + num
+        canvas = (canvas[0] + lo + num, canvas[1])
+        rect, inside = _rectify(ref_bgr, other_bgr, cam, dist, (R_ref, R_other), K_rect, canvas)
+        grey = [cv2.cvtColor(r, cv2.COLOR_BGR2GRAY) for r in rect]
     disp = _sgbm(grey[0], grey[1], lo, num, cfg)
     disp[~inside[0]] = 0.0
     # The match must land inside the other image too (the black margin matches anything).
@@ -224,6 +228,8 @@ def _rectify(ref: np.ndarray, other: np.ndarray, cam: CameraModel, dist: FloatAr
 def _sgbm(left: np.ndarray, right: np.ndarray, lo: int, num: int,
           cfg: StereoConfig) -> np.ndarray:
     b = cfg.block_size
+    if left.shape[1] <= lo + num + b:  # OpenCV refuses a canvas inside its blind margin
+        return np.zeros(left.shape, np.float32)
     sgbm = cv2.StereoSGBM_create(
         minDisparity=lo, numDisparities=num, blockSize=b, P1=8 * b * b, P2=32 * b * b,
         disp12MaxDiff=cfg.lr_max_diff, uniquenessRatio=cfg.uniqueness,

@@ -54,13 +54,6 @@ def test_a_pair_that_moved_forward_is_matched_off_its_epipole() -> None:
     z = np.median(pts[:, 2])
     # A third of the step runs across the view: less precise than a sideways pair.
     assert np.median(dist) < 0.008 * z and np.mean(dist > 0.05) < 0.15
-    # A lateral step of the same length makes the better pair (precision goes with the
-    # baseline across the view).
-    side = poses[0].copy()
-    side[:3, 3] += poses[0][:3, 0] * np.linalg.norm(T[:3, 3])
-    cfg = dense_stereo.StereoConfig(max_forward_fraction=0.95)
-    assert dense_stereo.pair_quality(poses[0], side, z, cfg) < \
-        dense_stereo.pair_quality(poses[0], poses[1], z, cfg)
 
 
 def test_fused_cloud_is_accurate_clean_and_has_normals() -> None:
