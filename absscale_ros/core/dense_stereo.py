@@ -183,6 +183,9 @@ def compute_depth(ref_bgr: np.ndarray, other_bgr: np.ndarray, camera: CameraMode
         rect, inside = _rectify(ref_bgr, other_bgr, cam, dist, (R_ref, R_other), K_rect, canvas)
         grey = [cv2.cvtColor(r, cv2.COLOR_BGR2GRAY) for r in rect]
     disp = _sgbm(grey[0], grey[1], lo, num, cfg)
+    # A matching window that overlaps an image's black margin is biased: keep a block away.
+    rim = np.ones((cfg.block_size, cfg.block_size), np.uint8)
+    inside = [cv2.erode(m.astype(np.uint8), rim).astype(bool) for m in inside]
     disp[~inside[0]] = 0.0
     # The match must land inside the other image too (the black margin matches anything).
     v, u = np.nonzero(disp > 0)
