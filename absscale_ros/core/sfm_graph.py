@@ -218,7 +218,8 @@ class SegmentGraph:
             self.batch(m)
             return
         self._write_back(m, self._isam.calculateEstimate())
-        self._retriangulate(m, [k for k in ids if k >= self._free_from])
+        # The newest window: they moved most, and matching and the local map look only there.
+        self._retriangulate(m, [k for k in ids[-self._cfg.window:] if k >= self._free_from])
 
     def _retriangulate(self, m: sfm_map.SfmMap, kf_ids: list[int]) -> None:
         """
