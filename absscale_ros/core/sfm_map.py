@@ -87,12 +87,10 @@ class SfmMap:
         if kf_subset is None:
             triples = ((i, k, uv) for i, lm in self.landmarks.items()
                        for k, uv in lm.obs_px.items())
-        else:
-            lms = {int(i) for k in kf_subset for i in self.keyframes[k].landmark_of if i >= 0}
-            lms |= {int(i) for k in kf_subset if self.keyframes[k].vertices is not None
-                    for i in self.keyframes[k].vertices.landmark_of if i >= 0}
-            triples = ((i, k, uv) for i in lms if i in self.landmarks
-                       for k, uv in self.landmarks[i].obs_px.items() if k in kf_subset)
+        else:  # from the keyframes' side: O(their keypoints), not O(track lengths)
+            triples = ((i, k, self.landmarks[i].obs_px[k]) for k in kf_subset
+                       for i in self._seen(k) if i in self.landmarks and
+                       k in self.landmarks[i].obs_px)
         for lm_id, kf_id, uv in triples:
             lm_ids.append(lm_id)
             kf_ids.append(kf_id)
@@ -107,6 +105,14 @@ class SfmMap:
         err = np.linalg.norm(uv_hat - np.array(uvs), axis=1)
         err[~(p_cam[:, 2] > 0.0)] = np.inf
         return list(zip(lm_ids, kf_ids, err.tolist()))
+
+    def _seen(self, kf_id: int) -> set[int]:
+        """Ids of the landmarks keyframe ``kf_id`` has a keypoint or a vertex of."""
+        kf = self.keyframes[kf_id]
+        ids = set(kf.landmark_of[kf.landmark_of >= 0].tolist())
+        if kf.vertices is not None:
+            ids.update(kf.vertices.landmark_of[kf.vertices.landmark_of >= 0].tolist())
+        return ids
 
     def reprojection_rms_px(self, K: FloatArray, kf_subset: set[int] | None = None) -> float:
         """RMS reprojection error of all observations (or of those in ``kf_subset``), px."""
