@@ -126,7 +126,7 @@ def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
     config_path = params.find_config(config)
     sections = params.load_yaml(config_path)
     lease = DomainLease() if options.domain_id is None else None
-    # Read when this process's first DDS participant starts (the replay's frames are large).
+    # Read when a process's first DDS participant starts; node processes inherit it.
     os.environ.update(params.dds_environment())
     context = rclpy.Context()
     rclpy.init(context=context, args=[], domain_id=options.domain_id if lease is None
@@ -200,7 +200,7 @@ class _NodeProcesses:
 
     def __init__(self, config_path: Path, domain_id: int, live: bool) -> None:
         self._dir = tempfile.TemporaryDirectory(prefix='absscale_nodes_')
-        env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), **params.dds_environment())
+        env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))  # with run_graph's DDS profile
         sections = params.load_yaml(config_path)
         found = dict(available_nodes(sections))
         self.names = list(found)
