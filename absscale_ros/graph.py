@@ -40,6 +40,9 @@ PIPELINE: list[tuple[str, str, str]] = [
     ('dense', 'absscale_ros.nodes.dense', 'DenseNode'),
 ]
 MEMORY_PERIOD_S = 5.0
+KEYFRAMES_TOPIC, KEYFRAME_PATH_TOPIC = '/absscale/keyframes', '/absscale/keyframe_path'
+DRAIN_LIMIT_S = 300.0  # after the bag: the longest wait for the graph to catch up
+STALLED_S = 10.0  # nothing moved this long: the graph is not catching up, stop waiting
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
 # With the dense node on, it owns /scaled_cloud and the sparse metric cloud moves here.
 SPARSE_METRIC_TOPIC = '/absscale/sparse_cloud_metric'
@@ -174,6 +177,8 @@ def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
             'nodes': node_reports,
             **monitor.report(),
             'latency_s': _latency(replay.published_at, monitor.cloud_updates),
+            'frames_not_processed': _frames_not_processed(len(replay.published_at),
+                                                          node_reports),
             # ru_maxrss is in KiB on Linux; with --processes this is the runner alone.
             'peak_rss_mb': round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
             'rss_mb': memory,  # [wall s, frames replayed, resident MB] every MEMORY_PERIOD_S
@@ -300,14 +305,43 @@ def _latency(published_at: dict[int, int], updates: list[tuple[int, int]]) -> di
             'p95': float(np.percentile(lat, 95)), 'max': float(np.max(lat))}
 
 
+def _frames_not_processed(frames: int, node_reports: dict[str, Any]) -> dict[str, Any]:
+    """
+    Per frame-rate node, the bag's frames it never handled (live: dropped when behind, by
+    sensor-data QoS or its own choice), as a count and a share. Offline all are zero.
+    """
+    handled = {'frame_ingest': 'frames_decoded', 'vertex_detector': 'frames',
+               'keyframe_selector': 'frames'}
+    out: dict[str, Any] = {'frames': frames}
+    for node, key in handled.items():
+        count = node_reports.get(node, {}).get(key)
+        if count is not None and frames:
+            out[node] = {'count': frames - int(count),
+                         'share': round((frames - int(count)) / frames, 4)}
+    return out
+
+
 def _drain(executor: Any, monitor: GraphMonitorNode, quiet_s: float) -> None:
-    """Spin until no message has moved for ``quiet_s`` (late diagnostics, last clouds)."""
-    deadline = time.monotonic() + 10.0
-    quiet_since, seen = time.monotonic(), monitor.total
-    while time.monotonic() - quiet_since < quiet_s and time.monotonic() < deadline:
+    """
+    Spin until no message has moved for ``quiet_s`` (late diagnostics, last clouds) and the
+    SfM has answered every keyframe. Live, the SfM may be several keyframes behind when the
+    bag ends, and between two of its updates nothing moves for longer than ``quiet_s``.
+    """
+    start = time.monotonic()
+    quiet_since, seen = start, monitor.total
+    while time.monotonic() - start < DRAIN_LIMIT_S:
+        quiet = time.monotonic() - quiet_since
+        if quiet >= quiet_s and (not _sfm_behind(monitor) or quiet >= STALLED_S):
+            return
         executor.spin_once(timeout_sec=0.02)
         if monitor.total != seen:
             quiet_since, seen = time.monotonic(), monitor.total
+
+
+def _sfm_behind(monitor: GraphMonitorNode) -> bool:
+    """Keyframes published that the SfM has not answered with a path yet."""
+    counts = monitor.counts
+    return counts.get(KEYFRAMES_TOPIC, 0) > counts.get(KEYFRAME_PATH_TOPIC, 0) > 0
 
 
 def _node_report(node: Node) -> dict[str, Any]:

@@ -26,6 +26,9 @@ def test_run_writes_report_picture_and_recording(tmp_path: Path) -> None:
         assert node in report['nodes'], sorted(report['nodes'])
     assert report['messages_per_topic'].get('/absscale/frames') == 12
     assert len(report['detections']) == 12  # one vertices cloud per frame, empty or not
+    skipped = report['frames_not_processed']  # lossless: every node handled every frame
+    assert skipped['frames'] == 12 and skipped['vertex_detector'] == {'count': 0, 'share': 0.0}
+    assert skipped['frame_ingest']['count'] == skipped['keyframe_selector']['count'] == 0
     first = report['rss_mb'][0]  # memory over the run: [wall s, frames, resident MB]
     assert first[0] == 0.0 and 50 < first[2] <= report['peak_rss_mb']
     assert (out / 'run.png').stat().st_size > 10_000
@@ -105,3 +108,22 @@ def _runs_a_node(pid: int) -> bool:
         return b'absscale_ros.nodes.' in Path(f'/proc/{pid}/cmdline').read_bytes()
     except OSError:
         return False  # gone (a zombie's cmdline is empty)
+
+
+def test_live_run_reports_what_each_node_handled(tmp_path: Path) -> None:
+    bag = tmp_path / 'cam.mcap'
+    write_camera_bag(bag, frames=30, size=(640, 360))
+    out = tmp_path / 'out'
+    done = subprocess.run([sys.executable, '-m', 'absscale_ros.cli', 'run', str(bag),
+                           '--config', 'indoor_paper', '--out', str(out), '--live'],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 1, done.stderr[-3000:]  # no target in random frames: no scale
+    report = json.loads((out / 'report.json').read_text())
+    assert report['replay']['live'] and report['replay']['mode'] == 'rate'
+    skipped = report['frames_not_processed']
+    assert skipped['frames'] == 30
+    for node in ('frame_ingest', 'vertex_detector', 'keyframe_selector'):
+        handled = report['nodes'][node]['frames_decoded' if node == 'frame_ingest'
+                                        else 'frames']
+        assert 0 < handled <= 30 and skipped[node]['count'] == 30 - handled
+    assert report['latency_s'] == {'updates': 0}  # no scale, so no /scaled_cloud update

@@ -34,6 +34,23 @@ def evaluate_bag(bag: str, config: str | None) -> dict[str, Any]:
     return measure(bag, report, msgs, gt)
 
 
+def against_truth_file(bag: str, report: dict[str, Any],
+                       latest: dict[str, tuple[Any, bytes]]) -> dict[str, Any]:
+    """
+    Scale error of a finished run against ``BAG.gt.json`` when the bag is a simulator's
+    ({} when there is no ground truth beside it).
+
+    :param latest: the run's last (message class, CDR bytes) by topic.
+    """
+    gt_path = Path(f'{bag}.gt.json')
+    if not gt_path.exists():
+        return {}
+    from absscale_ros.sim import groundtruth
+    from rclpy.serialization import deserialize_message
+    msgs = {t: deserialize_message(d, c) for t, (c, d) in latest.items()}
+    return measure(bag, report, msgs, groundtruth.load(gt_path), lengths=False)
+
+
 def measure(bag: str, report: dict[str, Any], msgs: dict[str, Any], gt: dict[str, Any],
             lengths: bool = True) -> dict[str, Any]:
     """

@@ -27,7 +27,8 @@ def run(args: argparse.Namespace) -> int:
     from absscale_ros import outputs
     latest = report.pop('_latest')
     report['outputs'] = outputs.write_run_outputs(latest, out, report)
-    truth = _against_truth(bag, report, latest)
+    from absscale_ros.tools import bench_scale
+    truth = bench_scale.against_truth_file(str(bag), report, latest)
     (out / 'report.json').write_text(json.dumps(report, indent=2, default=str) + '\n')
     replay = report['replay']
     print(f'  frames replayed : {replay["steps"]} ({replay["published"]} messages) in '
@@ -49,16 +50,3 @@ def run(args: argparse.Namespace) -> int:
         if (out / name).exists():
             print(f'  output          : {out / name}')
     return 0  # the demo ran; whether a scale was established is printed above
-
-
-def _against_truth(bag: Path, report: dict, latest: dict) -> dict:
-    """Scale error against the sample's gt.json (skipped when there is none)."""
-    gt_path = Path(f'{bag}.gt.json')
-    if not gt_path.exists():
-        return {}
-    from absscale_ros.sim import groundtruth
-    from absscale_ros.tools import bench_scale
-    from rclpy.serialization import deserialize_message
-    msgs = {t: deserialize_message(d, c) for t, (c, d) in latest.items()}
-    return bench_scale.measure(str(bag), report, msgs, groundtruth.load(gt_path),
-                               lengths=False)

@@ -56,7 +56,13 @@ def run(args: argparse.Namespace) -> int:
     if show is not None:
         print(file=sys.stderr)
     from absscale_ros import outputs
-    report['outputs'] = outputs.write_run_outputs(report.pop('_latest'), out, report)
+    latest = report.pop('_latest')
+    report['outputs'] = outputs.write_run_outputs(latest, out, report)
+    from absscale_ros.tools import bench_scale
+    truth = bench_scale.against_truth_file(args.bag, report, latest)  # simulator bags only
+    if truth.get('scale_error_mm_per_m') is not None:
+        report['truth'] = {k: truth[k] for k in ('true_factor', 'scale_error_mm_per_m',
+                                                 'claimed_sigma_mm_per_m')}
     (out / 'report.json').write_text(json.dumps(report, indent=2, default=str) + '\n')
     print(f'replayed {report["replay"]["published"]} messages '
           f'({report["replay"]["steps"]} frames) in {report["wall_time_s"]:.1f} s; '
@@ -69,4 +75,7 @@ def run(args: argparse.Namespace) -> int:
     if scale is not None:
         print(f'metric scale: {scale["factor"]:.6g} m per SfM unit +/- '
               f'{1000 * scale["sigma"] / scale["factor"]:.2f} mm/m')
+    if 'truth' in report:
+        print(f'error against the bag\'s ground truth: '
+              f'{report["truth"]["scale_error_mm_per_m"]:+.2f} mm/m')
     return 0
