@@ -307,17 +307,23 @@ def _latency(published_at: dict[int, int], updates: list[tuple[int, int]]) -> di
 
 def _frames_not_processed(frames: int, node_reports: dict[str, Any]) -> dict[str, Any]:
     """
-    Per frame-rate node, the bag's frames it never handled (live: dropped when behind, by
-    sensor-data QoS or its own choice), as a count and a share. Offline all are zero.
+    Per frame-rate node, the bag's frames it lost (live: dropped by sensor-data QoS when
+    behind), as a count and a share; frames the detector's live rate cap passed over are
+    counted apart. Offline all are zero.
     """
     handled = {'frame_ingest': 'frames_decoded', 'vertex_detector': 'frames',
                'keyframe_selector': 'frames'}
     out: dict[str, Any] = {'frames': frames}
     for node, key in handled.items():
         count = node_reports.get(node, {}).get(key)
-        if count is not None and frames:
-            out[node] = {'count': frames - int(count),
-                         'share': round((frames - int(count)) / frames, 4)}
+        if count is None or not frames:
+            continue
+        # Frames a live detector passed over by its rate cap were not lost: counted apart.
+        by_rate = int(node_reports[node].get('frames_skipped_by_rate', 0))
+        lost = frames - int(count) - by_rate
+        out[node] = {'count': lost, 'share': round(lost / frames, 4)}
+        if by_rate:
+            out[node]['skipped_by_rate'] = by_rate
     return out
 
 

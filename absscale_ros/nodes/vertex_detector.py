@@ -17,6 +17,10 @@ consumers can tell "looked and saw nothing" from "no data"). Fields, little-endi
 ``score``       float32 edge support of the object, 0-1
 =============== ======= ===============================================================
 
+With ``qos: sensor_data`` (a live camera) it looks at most ``live_max_rate_hz`` frames a second
+(by frame stamp) and publishes nothing for the frames in between, so that the SfM, which needs
+the CPU more, is not starved; the keyframe selector places keyframes on frames it looked at.
+
 ``/absscale/debug_image`` (Image bgr8, the overlay) is drawn only while someone subscribes.
 ``/diagnostics`` carries frames, detection rate and time per frame once a second. In step mode
 each frame is acknowledged on ``/absscale/ack`` (``common.StepAck``).
@@ -52,6 +56,10 @@ class VertexDetectorNode(Node):
         target = self.declare_parameter('target', 'auto').value
         auto_sheets = self.declare_parameter('auto_sheets', ['letter']).value
         qos = self.declare_parameter('qos', 'reliable').value  # reliable | sensor_data
+        rate = float(self.declare_parameter('live_max_rate_hz', 10.0).value)
+        # Offline (reliable) every frame is detected: the replay is lossless.
+        self._min_gap_ns = int(1e9 / rate) if qos == 'sensor_data' and rate > 0.0 else 0
+        self._last_stamp_ns: int | None = None
         self._cfg = detect.DetectConfig(
             target=target, auto_sheets=tuple(auto_sheets),
             sheet=_declare(self, 'sheet', detect_sheet.SheetConfig()),
@@ -67,7 +75,7 @@ class VertexDetectorNode(Node):
                                                   self._on_info, in_qos)
         self._frames_sub = self.create_subscription(Image, '/absscale/frames', self._on_frame,
                                                     in_qos)
-        self._frames = self._with_target = self._dropped = 0
+        self._frames = self._with_target = self._dropped = self._skipped = 0
         self._times_ms: list[float] = []
         self._timer = self.create_timer(1.0, self._publish_diagnostics)
 
@@ -78,13 +86,16 @@ class VertexDetectorNode(Node):
             self.get_logger().warning(f'bad camera_info: {err}', throttle_duration_sec=5.0)
 
     def _on_frame(self, msg: Image) -> None:
+        stamp_ns = conversions.stamp_to_ns(msg.header.stamp)
+        if self._skip(stamp_ns):
+            self._skipped += 1
+            return
         outputs: list[str] = []
         try:
             image = conversions.image_msg_to_bgr(msg)
             t0 = time.perf_counter()
             result = detect.detect(image, self._cfg, self._K)
             self._times_ms.append(1e3 * (time.perf_counter() - t0))
-            stamp_ns = conversions.stamp_to_ns(msg.header.stamp)
             cloud = detect.vertices_array(result)
             self._vertices_pub.publish(
                 conversions.array_to_cloud_msg(cloud, stamp_ns, msg.header.frame_id))
@@ -100,11 +111,20 @@ class VertexDetectorNode(Node):
             self.get_logger().warning(f'frame dropped: {err}', throttle_duration_sec=5.0)
         self._ack.ack(msg.header.stamp, self._frames_sub.topic_name, outputs)
 
+    def _skip(self, stamp_ns: int) -> bool:
+        """Live: whether this frame comes too soon after the last one looked at."""
+        # 2 ms of slack: a 30 fps stamp grid must not turn 10 Hz into 7.5 Hz.
+        if self._last_stamp_ns is not None and 0 <= stamp_ns - self._last_stamp_ns < \
+                self._min_gap_ns - 2_000_000:
+            return True
+        self._last_stamp_ns = stamp_ns
+        return False
+
     def report(self) -> dict[str, Any]:
         """Counts for report.json."""
         times = np.array(self._times_ms) if self._times_ms else np.array([np.nan])
         return {'frames': self._frames, 'frames_with_target': self._with_target,
-                'frames_dropped': self._dropped,
+                'frames_dropped': self._dropped, 'frames_skipped_by_rate': self._skipped,
                 'detection_rate': self._with_target / self._frames if self._frames else None,
                 'time_ms_median': float(np.median(times)),
                 'time_ms_p95': float(np.percentile(times, 95))}

@@ -52,3 +52,31 @@ def test_cloud_per_frame_ack_and_debug(context) -> None:
 
 def test_vertices_array_layout() -> None:
     assert detect.vertices_array(detect.FrameDetections((), ('cube',))).shape == (0,)
+
+
+def test_live_detector_keeps_to_its_rate(context) -> None:
+    """With sensor-data QoS it looks at 10 of 30 frames a second, by stamp, and says so."""
+    node = VertexDetectorNode(context=context, parameter_overrides=[
+        Parameter('target', value='cube'), Parameter('qos', value='sensor_data'),
+        Parameter('live_max_rate_hz', value=10.0)])
+    helper = Node('vd_rate_helper', context=context)
+    clouds: list[PointCloud2] = []
+    helper.create_subscription(PointCloud2, '/absscale/vertices', clouds.append, 100)
+    pub = helper.create_publisher(Image, '/absscale/frames', 100)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    executor.add_node(helper)
+    rng = np.random.default_rng(1)
+    img, _, _ = st.render_cube(rng, *st.cube_pose(35, 25, 5.0))
+    assert spin_until(executor, lambda: pub.get_subscription_count() > 0, 5.0)
+    for k in range(9):  # 30 fps stamps, published slowly enough for best effort to keep all
+        pub.publish(conversions.array_to_image_msg(img, 'bgr8', 1_000 + k * 33_333_333,
+                                                   'camera'))
+        assert spin_until(executor, lambda: node.report()['frames'] +
+                          node.report()['frames_skipped_by_rate'] == k + 1, 10.0)
+    assert spin_until(executor, lambda: len(clouds) == 3, 5.0)
+    assert [conversions.stamp_to_ns(c.header.stamp) for c in clouds] == \
+        [1_000, 1_000 + 3 * 33_333_333, 1_000 + 6 * 33_333_333]
+    assert node.report()['frames_skipped_by_rate'] == 6
+    node.destroy_node()
+    helper.destroy_node()
