@@ -60,6 +60,9 @@ class SheetConfig:
         unsaturated; a shaded sheet or a warm light stays well below this).
     :param max_outside_spread: the same spread test just outside the sides (the surface the
         sheet lies on), looser: shadows and a second surface at one side are common.
+    :param max_shade: the inside (and outside) colours of the four sides may differ in
+        brightness up to this factor when their hues agree: a shadow across the sheet and
+        its surface (``sheet_checks.one_colour``; 1.0 turns it off).
     :param rough_aspect_tol: the aspect test on rough mask corners, before refinement (wide:
         a small sheet seen obliquely has rough corners a few px off on 40 px sides).
     :param max_ridges: most sides whose colour recovers beyond a thin dark line
@@ -91,6 +94,7 @@ class SheetConfig:
     max_inside_spread: float = 0.25
     max_saturation: float = 0.35
     max_outside_spread: float = 0.5
+    max_shade: float = 2.5
     rough_aspect_tol: float = 0.8
     max_ridges: int = 1
     ridge_ratio: float = 0.3

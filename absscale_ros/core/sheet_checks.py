@@ -15,6 +15,7 @@ if TYPE_CHECKING:
     from absscale_ros.core.detect_sheet import SheetConfig
 
 Array = npt.NDArray[np.float64]
+SHADE_FLOOR = 32.0  # brightness floor of the shade-free colour test: dark colours are noisy
 
 
 def covered(image_bgr: npt.NDArray[np.uint8], corner: Array, inside: Array,
@@ -44,9 +45,9 @@ def passes(image_bgr: npt.NDArray[np.uint8], refined: sides.Refined, cfg: 'Sheet
     corners, supports, steps, inside, outside = refined
     if supports.min() < cfg.min_support or steps.min() < cfg.min_contrast:
         return False  # not a sheet on a different surface all round
-    if not one_colour(inside, cfg.max_inside_spread, cfg.max_saturation):
+    if not one_colour(inside, cfg.max_inside_spread, cfg.max_saturation, cfg.max_shade):
         return False  # four edges of different things (a table top, its legs, the floor)
-    if not one_colour(outside, cfg.max_outside_spread, 1.0):
+    if not one_colour(outside, cfg.max_outside_spread, 1.0, cfg.max_shade):
         return False  # a sheet lies on one surface: wall between table legs, floor below
     if not aspect_ok(corners, image_bgr.shape, cfg, K, cfg.aspect_tol):
         return False
@@ -76,10 +77,23 @@ def aspect_ok(corners: Array, shape: tuple[int, ...], cfg: 'SheetConfig', K: Arr
     return abs(aspect / cfg.model().aspect - 1.0) <= tol
 
 
-def one_colour(bgr: Array, max_spread: float, max_saturation: float) -> bool:
-    """Return True when (4, 3) side colours are one colour, no more saturated than given."""
+def one_colour(bgr: Array, max_spread: float, max_saturation: float,
+               max_shade: float = 1.0) -> bool:
+    """
+    Return True when (4, 3) side colours are one colour, no more saturated than given.
+
+    ``max_shade`` > 1: one surface in light and shadow alike. A shadow scales a colour (its
+    hue stays), so the spread is measured on the colours brought to the median's brightness
+    and the brightnesses may differ up to this factor (a hand's or the camera's shadow across
+    a page, real photographs); 1 compares the colours as they are.
+    """
     ref = np.median(bgr, axis=0)
     level = max(float(ref.max()), 1.0)
+    if max_shade > 1.0:
+        lv = np.maximum(bgr.max(axis=1), SHADE_FLOOR)
+        if float(lv.max() / lv.min()) > max_shade:
+            return False
+        bgr = bgr * (max(level, SHADE_FLOOR) / lv)[:, None]
     spread = float(np.linalg.norm(bgr - ref, axis=1).max())
     return spread <= max_spread * level and \
         float(ref.max() - ref.min()) <= max_saturation * level

@@ -1,5 +1,6 @@
 """Detector tests on rendered frames (synthetic, anti-aliased, JPEG) and on real photographs."""
 import csv
+from dataclasses import replace
 from pathlib import Path
 import sys
 
@@ -212,6 +213,40 @@ def test_real_smartdoc_frames():
     # cable and pens across its sides) are not found: see the issue 4 report.
     assert found >= 4
     assert np.median(rels) <= 0.005
+
+
+def _shadowed(img, true_px, kind):
+    """A real frame with a shadow cast across the page: half of it, or one corner."""
+    h, w = img.shape[:2]
+    yy, xx = np.mgrid[:h, :w]
+    if kind == 'half':  # a hard shadow edge through the page's middle
+        shade = (xx < true_px[:, 0].mean()).astype(np.float32)
+    else:  # a soft-edged shadow over the top corner and parts of both its sides
+        c = true_px[np.argmin(true_px[:, 1])]
+        shade = (np.hypot(xx - c[0], yy - c[1]) < 0.35 * np.ptp(true_px[:, 1]))
+        shade = cv2.GaussianBlur(shade.astype(np.float32), (0, 0), 5)
+    return np.clip(img * (1.0 - 0.4 * shade[..., None]), 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize('kind', ['half', 'corner'])
+def test_real_smartdoc_frames_with_a_shadow_across_the_page(kind):
+    """
+    A shadow darkens the page and the desk alike: one surface each, in light and shade. (As
+    ``absscale detect`` runs on photographs: a shadow edge splits the page's region masks,
+    the straight-edge hypotheses still see four sides.)
+    """
+    cfg = detect_sheet.SheetConfig(sheet='a4', line_candidates=True)
+    rels = []
+    for row, img, true_px in _smartdoc():
+        if row['bg_name'] == 'background05':
+            continue  # not found unshadowed either
+        dets = detect_sheet.detect_sheets(_shadowed(img, true_px, kind), cfg)
+        assert len(dets) == 1, row['image_path']
+        rels += list(_sheet_errors(dets[0], true_px)[1])
+    assert np.median(rels) <= 0.005 and max(rels) < 0.012
+    off = replace(cfg, max_shade=1.0)  # the colours compared as they are
+    _, img, true_px = next(_smartdoc())
+    assert detect_sheet.detect_sheets(_shadowed(img, true_px, kind), off) == []
 
 
 def test_real_smartdoc_frames_line_hypotheses_alone():
