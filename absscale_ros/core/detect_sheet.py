@@ -46,8 +46,10 @@ class SheetConfig:
     :param work_max_side_px: the candidate search runs on an image at most this big.
     :param canny_low: lower Canny threshold of the colour-edge candidates (BGR, 0-255).
     :param canny_high: upper Canny threshold of the colour-edge candidates.
-    :param focal_frac: focal length over the larger image side, used for the aspect check
-        when no camera model is given and the quadrilateral does not determine it.
+    :param focal_frac: focal length over the larger image side, used to predict a sheet's
+        hidden side when no camera model is given (``sheet_stub``).
+    :param focal_range: (smallest, largest) focal length over the larger image side that the
+        aspect check allows when no camera model is given (phones, webcams: 0.6-1.2).
     :param line_candidates: when the masks give no sheet, also try quadrilaterals of straight
         edges scored by gradient support (``quads``): a page on other pages or on a desk of
         the same white. Off for video: in a textured room it costs tens of ms on every frame
@@ -86,6 +88,7 @@ class SheetConfig:
     min_contrast: float = 10.0
     work_max_side_px: int = 480
     focal_frac: float = 0.9
+    focal_range: tuple[float, float] = (0.6, 1.2)
     canny_low: int = 20
     canny_high: int = 50
     line_candidates: bool = False
@@ -108,6 +111,10 @@ class SheetConfig:
             raise ValueError('need 0 <= roundness_min < roundness_max <= 1')
         if self.work_max_side_px < 64:
             raise ValueError(f'work_max_side_px too small: {self.work_max_side_px}')
+        if not 0.0 < self.focal_range[0] <= self.focal_range[1]:
+            raise ValueError(f'focal_range must be 0 < low <= high, got {self.focal_range}')
+        if self.max_shade < 1.0:
+            raise ValueError(f'max_shade must be >= 1, got {self.max_shade}')
         self.model()  # raises ValueError on an unknown sheet
 
     def model(self) -> targets.SheetModel:
@@ -219,12 +226,11 @@ def _line_candidates(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig
                       interpolation=cv2.INTER_AREA)
     min_side = np.sqrt(cfg.min_area_frac * work.shape[0] * work.shape[1] / cfg.model().aspect)
     hyps, _ = quads.find_quads(work, quads.QuadConfig(min_side_px=float(min_side)))
-    centre = np.array([(work.shape[1] - 1) / 2.0, (work.shape[0] - 1) / 2.0])
     kept: list[Array] = []
     for quad in hyps:  # best supported first
-        aspect = lines.rectangle_aspect(quad, None, cfg.focal_frac * max(work.shape), centre)
-        if abs(aspect / cfg.model().aspect - 1.0) > 2.0 * cfg.aspect_tol:
-            continue  # rough corners: a looser test here, the exact one after refinement
+        # Rough corners: a looser test here, the exact one after refinement.
+        if not sheet_checks.aspect_ok(quad, work.shape, cfg, None, 2.0 * cfg.aspect_tol):
+            continue
         if all(np.abs(quad - q).max() > 2.0 for q in kept):  # neighbouring Hough peaks
             kept.append(quad)
         if len(kept) == cfg.line_max_refine:
