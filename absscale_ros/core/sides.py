@@ -59,17 +59,16 @@ def _valid(ns: npt.NDArray[np.int64]) -> npt.NDArray[np.bool_]:
 
 def _median_strength(strength: Array, ns: npt.NDArray[np.int64]) -> Array:
     """
-    Return (S,) the median over each side's own profiles of its edge strengths, NaN when a
-    profile has no edge (as ``np.median`` gives it: ``refine`` then keeps every edge).
+    Return (S,) the median over each side's own profiles of its edge strengths, leaving out
+    the profiles with no edge (strength 0; 0 when a side has none). Profiles past a side's
+    count (``_valid``) must be 0 already.
     """
-    if ns[0] == ns.max() == ns.min():  # one profile count: the usual case
-        return np.median(np.where(strength > 0, strength, np.nan), axis=1)
-    out = np.zeros(len(strength))
-    for n in np.unique(ns):  # one median per profile count
-        idx = np.flatnonzero(ns == n)
-        s = strength[idx, :n]
-        out[idx] = np.median(np.where(s > 0, s, np.nan), axis=1)
-    return out
+    # A sort-based median of the nonzero entries: np.nanmedian costs ~10x more at this size.
+    srt = -np.sort(-strength, axis=1)  # descending: the k edges first
+    k = (strength > 0).sum(axis=1)
+    rows = np.arange(len(strength))
+    lo, hi = np.maximum((k - 1) // 2, 0), np.maximum(k // 2, 0)
+    return np.where(k > 0, 0.5 * (srt[rows, lo] + srt[rows, hi]), 0.0)
 
 
 def side_colours(samples: Array, ns: npt.NDArray[np.int64] | None = None
@@ -183,7 +182,7 @@ def refine(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
         if ns.min() < ns.max():
             strength = np.where(valid, strength, 0.0)
         med = _median_strength(strength, ns)
-        keep = (strength > 0) & (strength >= min_rel_strength * np.nan_to_num(med)[:, None])
+        keep = (strength > 0) & (strength >= min_rel_strength * med[:, None])
         usable = keep.sum(axis=1) >= 3
         fitted = fit_lines(pts, np.where(keep, strength, 0.0), lines_[:, :2],
                            np.full(len(lines_), max(0.5, band / 4.0)))
