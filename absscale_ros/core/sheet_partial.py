@@ -20,7 +20,6 @@ import numpy.typing as npt
 from absscale_ros.core import lines, sides
 
 Array = npt.NDArray[np.float64]
-FIRST_PASS_SUPPORT = 0.25  # a seen side less supported after the widest pass: not a sheet
 # Refinement bands after the widest, px: without the middle pass sides seen only in part lose
 # sheets (two frames of the unseen seed 42).
 FINE_BANDS = (4.0, 3.0)
@@ -46,7 +45,6 @@ class Partial:
 def pentagon(contour: npt.NDArray[np.int32]) -> Array | None:
     """Return the (5, 2) simplified convex hull of a contour when it has five vertices."""
     return lines.rough_polygon(contour, 5, (0.01, 0.02, 0.03))
-    return None
 
 
 def hypotheses(poly: Array, min_seen: float) -> list[Partial]:
@@ -85,23 +83,15 @@ def rough_sides(hyp: Partial) -> tuple[Array, int]:
     return rough, int(np.clip(seen_len.mean() / 4.0, 16, 64))
 
 
-def refine(image_bgr: npt.NDArray[np.uint8], hyp: Partial, band_px: float
+def finish(hyp: Partial, out: sides.Refined, band_px: float
            ) -> tuple[Array, Array, Array, Array, Array, Array] | None:
     """
-    Refine a hypothesis's sides along their seen parts and intersect them.
+    Intersect a hypothesis's sides, refined along their seen parts (``out``, from
+    ``sides.refine_many``).
 
     :returns: ((4, 2) corners, (4,) supports, (4,) colour steps, (4, 3) inside colours,
         (4, 3) outside colours, (5, 2) outline of the seen part) or None.
     """
-    rough, n = rough_sides(hyp)
-    out = sides.refine_checked(image_bgr, rough, hyp.seen_ends, (band_px,) + FINE_BANDS, n,
-                               FIRST_PASS_SUPPORT)
-    return None if out is None else finish(hyp, out, band_px)
-
-
-def finish(hyp: Partial, out: sides.Refined, band_px: float
-           ) -> tuple[Array, Array, Array, Array, Array, Array] | None:
-    """``refine`` after the sides' refinement ``out`` (``sides.refine_checked``)."""
     refined, supports, steps, inside, outside = out
     corners = lines.quad_corners(list(refined))
     if corners is None or not cv2.isContourConvex(corners.astype(np.float32)):

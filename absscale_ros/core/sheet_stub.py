@@ -25,7 +25,6 @@ STUB_AGREE = 0.05  # largest distance of the stub's corner from the predicted on
 STUB_MIN_SUPPORT = 0.99  # every profile of the stub must find its edge on the fitted line
 OCCLUDER_DEPTH = 0.1  # of the shorter hidden side: how far inside an occluder's edge must cut
 SHORT_EDGE = 0.25  # polygon edges shorter than this fraction of a side are a blunted corner
-FIRST_PASS_SUPPORT = 0.25  # a seen side less supported after the widest pass: not a sheet
 # Sides checked after that pass: not the stub (2), whose wide profiles near the corner still
 # catch the whole side's edge.
 CHECKED = np.array([0, 1, 3])
@@ -224,30 +223,16 @@ def _hypothesis(p: Array, ls: list[Array], i: int, j: int, k: int, K: Array, stu
     return sheet_partial.Partial(corners, ends, np.array([stub_px / tr, seen_rb / rb]))
 
 
-def refine(image_bgr: npt.NDArray[np.uint8], hyp: sheet_partial.Partial, band_px: float,
-           K: Array, aspect: float) -> tuple[Array, Array, Array, Array, Array, Array] | None:
-    """
-    Refine a stub hypothesis's sides along their seen parts (as ``sheet_partial.refine``);
-    the seen corners are intersections of refined sides, the hidden one is where the predicted
-    fourth side (through the third corner) meets the third side, not the stub's own poorly
-    determined direction. The stub's corner must agree with the one the sheet's ``aspect``
-    (long / short side) puts at the end of its whole side: an occluder's edge a few pixels
-    past the corner pulls a stub's corner off.
-
-    :returns: ((4, 2) corners, (4,) supports, (4,) colour steps, (4, 3) inside colours,
-        (4, 3) outside colours, (5, 2) outline of the seen part) or None.
-    """
-    rough, n = sheet_partial.rough_sides(hyp)
-    out = sides.refine_checked(image_bgr, rough, hyp.seen_ends, (band_px,) + FINE_BANDS, n,
-                               FIRST_PASS_SUPPORT, CHECKED)
-    return None if out is None else finish(hyp, out, band_px, K, aspect)
-
-
 def finish(hyp: sheet_partial.Partial, out: sides.Refined, band_px: float, K: Array,
            aspect: float, slack: float = 1.0
            ) -> tuple[Array, Array, Array, Array, Array, Array] | None:
     """
-    ``refine`` after the sides' refinement ``out`` (``sides.refine_checked``). ``slack`` > 1:
+    Corners of a stub hypothesis from its sides, refined along their seen parts (``out``,
+    from ``sides.refine_many``): the seen corners are intersections of refined sides, the
+    hidden one is where the predicted fourth side (through the third corner) meets the third
+    side, not the stub's own poorly determined direction. The stub's corner must agree with
+    the one the sheet's ``aspect`` (long / short side) puts at the end of its whole side: an
+    occluder's edge a few pixels past the corner pulls a stub's corner off. ``slack`` > 1:
     a screen after the widest pass only: the stub's edge, and so the third corner, are not
     settled yet, so neither is checked, and the occluder may cut ``slack`` times less deep.
     """
