@@ -275,7 +275,7 @@ def _spin(executor: Any, replay: BagReplayNode, monitor: GraphMonitorNode,
         now = time.monotonic()
         if on_progress is not None and (done or now - last > 0.2):
             last = now
-            on_progress(_progress(replay, nodes, now - t0))
+            on_progress(_progress(replay, nodes, monitor, now - t0))
         if done:
             return now - t0
         executor.spin_once(timeout_sec=0.05)
@@ -288,12 +288,29 @@ def _resident_mb() -> float:
     return round(pages * os.sysconf('SC_PAGE_SIZE') / 2**20, 1)
 
 
-def _progress(replay: BagReplayNode, nodes: dict[str, Node], elapsed_s: float) -> Progress:
+def _progress(replay: BagReplayNode, nodes: dict[str, Node], monitor: GraphMonitorNode,
+              elapsed_s: float) -> Progress:
     selector, scaler = nodes.get('keyframe_selector'), nodes.get('scale')
+    if selector is None:  # --processes: the nodes say it in their diagnostics
+        return Progress(replay.published, replay.total, replay.steps,
+                        *_progress_from_diagnostics(monitor.diagnostics), elapsed_s)
     estimate = getattr(scaler, 'estimate', None)
     return Progress(replay.published, replay.total, replay.steps,
                     len(getattr(selector, 'keyframe_stamps_ns', ())),
                     None if estimate is None else (estimate.factor, estimate.sigma), elapsed_s)
+
+
+def _progress_from_diagnostics(diagnostics: dict[str, dict[str, Any]]
+                               ) -> tuple[int, tuple[float, float] | None]:
+    """Keyframes so far and (factor, sigma) once claimed, from the latest diagnostics."""
+    keyframes = diagnostics.get('keyframe_selector: keyframes', {}).get('values', {})
+    scale = diagnostics.get('scale: metric scale', {}).get('values', {})
+    try:
+        claimed = (float(scale['factor']), float(scale['sigma'])) \
+            if scale.get('observable') == 'True' else None
+        return int(keyframes.get('keyframes', 0)), claimed
+    except (KeyError, ValueError):
+        return 0, None
 
 
 def _latency(published_at: dict[int, int], updates: list[tuple[int, int]]) -> dict[str, Any]:

@@ -1,0 +1,21 @@
+"""The progress bar's keyframes and scale when the nodes run in other processes."""
+from absscale_ros import conversions, graph
+
+
+def _summary(*statuses: tuple[str, str, dict]) -> dict:
+    msg = conversions.diagnostic_array(
+        [conversions.diagnostic_status(name, 'ok', text, values)
+         for name, text, values in statuses], 1_000)
+    return conversions.diagnostic_summary(msg)
+
+
+def test_progress_reads_keyframes_and_a_claimed_scale_from_diagnostics() -> None:
+    assert graph._progress_from_diagnostics({}) == (0, None)
+    selector = ('keyframe_selector: keyframes', 'selecting keyframes',
+                {'frames': 120, 'keyframes': 7})
+    unclaimed = ('scale: metric scale', 'no scale yet', {'observable': False})
+    assert graph._progress_from_diagnostics(_summary(selector, unclaimed)) == (7, None)
+    claimed = ('scale: metric scale', '0.68 m/unit', {'observable': True, 'factor': 0.68,
+                                                      'sigma': 0.002, 'edges': 6})
+    keyframes, scale = graph._progress_from_diagnostics(_summary(selector, claimed))
+    assert keyframes == 7 and scale == (0.68, 0.002)
