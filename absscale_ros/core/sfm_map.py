@@ -1,4 +1,10 @@
-"""The state of one SfM map segment: keyframe poses, landmarks and their observations."""
+"""
+The state of one SfM map segment: keyframe poses, landmarks and their observations.
+
+A finished segment's landmarks can be packed into arrays (``SfmMap.freeze``: ~10x less memory
+than ~1 KB of Python objects per landmark, which made a long scan's memory grow); any access to
+``landmarks`` unpacks them again, exactly as they were.
+"""
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -28,7 +34,7 @@ class MapKeyframe:
     vertices: Any = None
 
 
-@dataclass
+@dataclass(slots=True)  # no __dict__: ~100 bytes less per landmark
 class Landmark:
     """
     A 3D point and its observations; a target vertex when ``label`` is (object_id, vertex_id).
@@ -43,26 +49,117 @@ class Landmark:
     label: tuple[int, int] | None = None
 
 
+@dataclass(frozen=True)
+class PackedLandmarks:
+    """
+    Landmarks as arrays, in the map's order; observations grouped by landmark.
+
+    :param ids: (M,) int64 landmark ids.
+    :param points_world: (M, 3) float64 positions, SfM units.
+    :param colours_rgb: (M, 3) uint8.
+    :param labels: (M, 2) int64 (object_id, vertex_id); rows of unlabelled landmarks unused.
+    :param labelled: (M,) bool, whether the landmark has a label.
+    :param obs_starts: (M + 1,) int64 first observation row of each landmark, then the total.
+    :param obs_kf_ids: (O,) int64 keyframe of each observation.
+    :param obs_px: (O, 2) float64 undistorted px.
+    """
+
+    ids: npt.NDArray[np.int64]
+    points_world: FloatArray
+    colours_rgb: npt.NDArray[np.uint8]
+    labels: npt.NDArray[np.int64]
+    labelled: npt.NDArray[np.bool_]
+    obs_starts: npt.NDArray[np.int64]
+    obs_kf_ids: npt.NDArray[np.int64]
+    obs_px: FloatArray
+
+
+def pack(landmarks: dict[int, Landmark]) -> PackedLandmarks:
+    """The arrays of ``landmarks`` (see ``PackedLandmarks``)."""
+    lms = list(landmarks.values())
+    counts = np.array([len(lm.obs_px) for lm in lms], np.int64)
+    return PackedLandmarks(
+        np.array(list(landmarks), np.int64),
+        np.array([lm.point_world for lm in lms], np.float64).reshape(-1, 3),
+        np.array([lm.colour_rgb for lm in lms], np.uint8).reshape(-1, 3),
+        np.array([lm.label or (-1, -1) for lm in lms], np.int64).reshape(-1, 2),
+        np.array([lm.label is not None for lm in lms], bool),
+        np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
+        np.fromiter((k for lm in lms for k in lm.obs_px), np.int64, int(counts.sum())),
+        np.array([uv for lm in lms for uv in lm.obs_px.values()], np.float64).reshape(-1, 2))
+
+
+def unpack(p: PackedLandmarks) -> dict[int, Landmark]:
+    """The landmarks ``pack`` was given, equal to them (own arrays, same orders)."""
+    out = {}
+    kf_ids, starts = p.obs_kf_ids.tolist(), p.obs_starts.tolist()
+    labels = [tuple(r) if ok else None for r, ok in zip(p.labels.tolist(), p.labelled.tolist())]
+    for n, lm_id in enumerate(p.ids.tolist()):
+        a, b = starts[n], starts[n + 1]
+        out[lm_id] = Landmark(p.points_world[n].copy(), tuple(p.colours_rgb[n].tolist()),
+                              {kf_ids[i]: p.obs_px[i].copy() for i in range(a, b)}, labels[n])
+    return out
+
+
 @dataclass
 class SfmMap:
-    """Keyframes and landmarks of one map segment, with id counters (ids never reused)."""
+    """
+    Keyframes and landmarks of one map segment, with id counters (ids never reused).
+
+    ``landmarks`` is a property: a frozen map unpacks them on first access (then is not frozen).
+    """
 
     keyframes: dict[int, MapKeyframe] = field(default_factory=dict)
-    landmarks: dict[int, Landmark] = field(default_factory=dict)
     next_landmark_id: int = 0
     dirty: set[int] = field(default_factory=set)  # landmarks observed since the graph looked
+    _landmarks: dict[int, Landmark] = field(default_factory=dict, repr=False)
+    _packed: PackedLandmarks | None = field(default=None, repr=False)
+
+    @property
+    def landmarks(self) -> dict[int, Landmark]:
+        if self._packed is not None:
+            self._landmarks, self._packed = unpack(self._packed), None
+            self._landmark_of_dtype(np.int64)
+        return self._landmarks
+
+    @property
+    def frozen(self) -> bool:
+        return self._packed is not None
+
+    def freeze(self) -> None:
+        """Pack the landmarks into arrays (for a segment that will not change for a while)."""
+        if self._packed is None:
+            self._packed, self._landmarks = pack(self._landmarks), {}
+            self._landmark_of_dtype(np.int32)  # ids stay far below 2**31; values unchanged
+
+    def _landmark_of_dtype(self, dtype: type) -> None:
+        for kf in self.keyframes.values():
+            kf.landmark_of = kf.landmark_of.astype(dtype)
+            if kf.vertices is not None:
+                kf.vertices.landmark_of = kf.vertices.landmark_of.astype(dtype)
+
+    def landmark_count(self) -> int:
+        """Number of landmarks (does not unpack a frozen map)."""
+        return len(self._packed.ids) if self._packed is not None else len(self._landmarks)
+
+    def vertex_count(self) -> int:
+        """Number of target vertex (labelled) landmarks (does not unpack a frozen map)."""
+        if self._packed is not None:
+            return int(self._packed.labelled.sum())
+        return sum(lm.label is not None for lm in self._landmarks.values())
 
     def add_landmark(self, point_world: FloatArray, colour_rgb: tuple[int, int, int],
                      label: tuple[int, int] | None = None) -> int:
         lm_id = self.next_landmark_id
         self.next_landmark_id += 1
-        self.landmarks[lm_id] = Landmark(np.asarray(point_world, np.float64), colour_rgb,
+        self.landmarks[lm_id] = Landmark(np.array(point_world, np.float64), colour_rgb,
                                          label=label)
         return lm_id
 
     def observe(self, lm_id: int, kf_id: int, point_px: FloatArray, kp_index: int = -1) -> None:
         """Record that keyframe ``kf_id`` sees landmark ``lm_id`` at ``point_px`` (undistorted)."""
-        self.landmarks[lm_id].obs_px[kf_id] = np.asarray(point_px, np.float64)
+        # A copy: a row of a keyframe's keypoint array would keep the whole array alive.
+        self.landmarks[lm_id].obs_px[kf_id] = np.array(point_px, np.float64)
         self.dirty.add(lm_id)
         if kp_index >= 0:
             self.keyframes[kf_id].landmark_of[kp_index] = lm_id

@@ -44,9 +44,33 @@ def best_segment(engine: sfm.IncrementalSfm) -> sfm.Segment:
     """The segment to publish (see the module docstring)."""
     def key(i_seg: tuple[int, sfm.Segment]) -> tuple[bool, int, int]:
         i, seg = i_seg
-        vertices = sum(lm.label is not None for lm in seg.map.landmarks.values())
-        return vertices >= 3, len(seg.map.keyframes), i
+        return seg.map.vertex_count() >= 3, len(seg.map.keyframes), i
     return max(enumerate(engine.segments), key=key)[1]
+
+
+def compact(engine: sfm.IncrementalSfm) -> int:
+    """
+    Drop what no later keyframe reads, without changing any result; returns the maps frozen.
+
+    The maps of the finished segments (released: nothing changes them until ``finish``) but
+    the published one, read after every keyframe, are frozen (``SfmMap.freeze``: ~100 bytes a
+    landmark, not ~1 KB). Keyframes whose features were forgotten lose their vertices' colour
+    windows (~7 KB a vertex), which only vertex linking reads, on the newest keyframes.
+    """
+    best = best_segment(engine)
+    frozen = 0
+    for seg in engine.segments:
+        if seg.map.frozen:
+            continue
+        for kf in seg.map.keyframes.values():
+            kv = kf.vertices
+            if kv is not None and not len(kf.features.points_px) and \
+                    any(w is not None for w in kv.windows):
+                kv.windows = [None] * len(kv.windows)
+        if seg.released and seg is not best:
+            seg.map.freeze()
+            frozen += 1
+    return frozen
 
 
 def cloud(m: sfm_map.SfmMap, K: FloatArray,

@@ -100,6 +100,7 @@ class SfmNode(Node):
         t0 = time.perf_counter()
         self._last = self.engine.add_keyframe(stamp_ns, image,
                                               sfm_outputs.vertices_from_rows(rows))
+        sfm_outputs.compact(self.engine)  # finished segments to arrays: memory of long scans
         self._times_ms.append(1e3 * (time.perf_counter() - t0))
         self.statuses[self._last.status] = self.statuses.get(self._last.status, 0) + 1
         return self._publish(stamp_ns)
@@ -154,9 +155,9 @@ class SfmNode(Node):
             rms = self._last.reprojection_rms_px if not full_rms and self._last is not None \
                 and seg is self.engine.current else m.reprojection_rms_px(
                     self.engine.K, None if full_rms else set(sorted(m.keyframes)[-3:]))
-            out.update(keyframes_registered=len(m.keyframes), landmarks=len(m.landmarks),
+            out.update(keyframes_registered=len(m.keyframes), landmarks=m.landmark_count(),
                        segments=len(self.engine.segments),
-                       target_vertices=sum(lm.label is not None for lm in m.landmarks.values()),
+                       target_vertices=m.vertex_count(),
                        reprojection_rms_px=rms,
                        keyframes_registered_all=sum(len(s.map.keyframes)
                                                     for s in self.engine.segments))
