@@ -21,14 +21,14 @@ class DetectConfig:
     What to look for.
 
     :param target: one of ``TARGET_CHOICES``.
-    :param auto_sheets: sheet names tried in 'auto' mode (A4 and letter differ by 9% in
-        aspect, so only one is tried by default: a detection is reported under that name).
+    :param auto_sheets: sheet names tried in 'auto' mode, in one search (each detection is
+        named after the size its aspect fits best: A4 and letter differ by 9 %).
     :param sheet: the sheet detector's thresholds (its ``sheet`` field is set from ``target``).
     :param cube: the cube detector's thresholds.
     """
 
     target: str = 'auto'
-    auto_sheets: tuple[str, ...] = ('letter',)
+    auto_sheets: tuple[str, ...] = ('letter', 'a4')
     sheet: detect_sheet.SheetConfig = field(default_factory=detect_sheet.SheetConfig)
     cube: detect_cube.CubeConfig = field(default_factory=detect_cube.CubeConfig)
 
@@ -43,7 +43,10 @@ class DetectConfig:
         if self.target == 'cube':
             return []
         if self.target == 'auto':
-            return [replace(self.sheet, sheet=name) for name in self.auto_sheets]
+            if not self.auto_sheets:
+                return []
+            return [replace(self.sheet, sheet=self.auto_sheets[0],
+                            other_sheets=self.auto_sheets[1:])]
         return [replace(self.sheet, sheet=self.target)]
 
 

@@ -36,6 +36,9 @@ class SheetConfig:
 
     :param sheet: 'letter', 'a4' or 'custom' (then ``size_m`` is used).
     :param size_m: (short, long) side of a custom sheet, m.
+    :param other_sheets: further sheet names accepted in the same search ('auto' mode): one
+        candidate search for all sizes, each detection named after the size whose aspect it
+        fits best.
     :param min_area_frac: smallest sheet area over image area (paper: 0.005).
     :param roundness_min: lower roundness bound, eq. 1 (paper: 0.1).
     :param roundness_max: upper roundness bound, eq. 1 (paper: 0.85).
@@ -79,6 +82,7 @@ class SheetConfig:
 
     sheet: str = 'letter'
     size_m: tuple[float, float] = (0.0, 0.0)
+    other_sheets: tuple[str, ...] = ()
     min_area_frac: float = 0.005
     roundness_min: float = 0.1
     roundness_max: float = 0.85
@@ -115,12 +119,17 @@ class SheetConfig:
             raise ValueError(f'focal_range must be 0 < low <= high, got {self.focal_range}')
         if self.max_shade < 1.0:
             raise ValueError(f'max_shade must be >= 1, got {self.max_shade}')
-        self.model()  # raises ValueError on an unknown sheet
+        self.models()  # raises ValueError on an unknown sheet
 
     def model(self) -> targets.SheetModel:
         """Return the configured sheet model."""
         size = self.size_m if self.sheet == 'custom' else None
         return targets.sheet_model(self.sheet, size)
+
+    def models(self) -> list[targets.SheetModel]:
+        """Return the configured sheet model, then those of ``other_sheets``."""
+        return [self.model()] + [targets.sheet_model(n) for n in self.other_sheets
+                                 if n != self.sheet]
 
 
 def _order(corners: Array) -> npt.NDArray[np.intp]:
@@ -206,7 +215,7 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
         K_ = K if K is not None else _guess_K(cfg.focal_frac, image_bgr.shape)
         hyps = sheet_stub.first_hypotheses(regions, scale, K_, cfg.stub_px, STUB_MAX_HYPS)
         groups = [hyps]  # one stub sheet at most: a fallback
-        aspect = cfg.model().aspect
+        aspect = tuple(m.aspect for m in cfg.models())
         _accept_partial(image_bgr, groups,
                         lambda hyp, out: sheet_stub.finish(hyp, out, band, K_, aspect), band,
                         cfg, K, found, rough_aspect=False, checked=sheet_stub.CHECKED,
@@ -214,7 +223,7 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
                         screen=lambda hyp, out: sheet_stub.finish(
                             hyp, out, band, K_, aspect, sheet_stub.SCREEN_SLACK) is not None)
     found.sort(key=lambda f: -f[0])
-    return [_detection(f, cfg.model()) for f in found]
+    return [_detection(f, sheet_checks.best_model(f[1], image_bgr.shape, cfg, K)) for f in found]
 
 
 def _line_candidates(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig
@@ -224,7 +233,8 @@ def _line_candidates(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig
     scale = min(1.0, cfg.line_work_max_side_px / max(h, w))
     work = cv2.resize(image_bgr, (round(w * scale), round(h * scale)),
                       interpolation=cv2.INTER_AREA)
-    min_side = np.sqrt(cfg.min_area_frac * work.shape[0] * work.shape[1] / cfg.model().aspect)
+    aspect = max(m.aspect for m in cfg.models())
+    min_side = np.sqrt(cfg.min_area_frac * work.shape[0] * work.shape[1] / aspect)
     hyps, _ = quads.find_quads(work, quads.QuadConfig(min_side_px=float(min_side)))
     kept: list[Array] = []
     for quad in hyps:  # best supported first

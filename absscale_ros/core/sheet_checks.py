@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from absscale_ros.core import lines, sides
+from absscale_ros.core import lines, sides, targets
 
 if TYPE_CHECKING:
     from absscale_ros.core.detect_sheet import SheetConfig
@@ -78,26 +78,48 @@ def aspect_ok(corners: Array, shape: tuple[int, ...], cfg: 'SheetConfig', K: Arr
 def aspect_error(corners: Array, shape: tuple[int, ...], cfg: 'SheetConfig',
                  K: Array | None) -> float:
     """
-    Return the relative deviation of the imaged rectangle's aspect from the sheet's.
+    Return the relative deviation of the imaged rectangle's aspect from the nearest configured
+    sheet's (``cfg.models()``).
 
     Without intrinsics, the smallest deviation over the focal lengths of ``cfg.focal_range``
     (0 when the aspect passes the sheet's within it): a focal length estimated from the
     quadrilateral's own vanishing points is unstable under mild perspective (real A4 pages
     measured 5-10 % off with it, within 1.3 % at the camera's focal length).
     """
-    target = cfg.model().aspect
     h, w = shape[:2]
     centre = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
     if K is not None:
-        return abs(lines.rectangle_aspect(corners, K, 0.0, centre) / target - 1.0)
-    aspects = []
-    for frac in np.linspace(cfg.focal_range[0], cfg.focal_range[1], FOCAL_STEPS):
-        f = frac * max(h, w)
-        K_f = np.array([[f, 0.0, centre[0]], [0.0, f, centre[1]], [0.0, 0.0, 1.0]])
-        aspects.append(lines.rectangle_aspect(corners, K_f, f, centre))
-    if min(aspects) <= target <= max(aspects):
-        return 0.0
-    return min(abs(a / target - 1.0) for a in aspects)
+        aspects = [lines.rectangle_aspect(corners, K, 0.0, centre)]
+    else:
+        aspects = []
+        for frac in np.linspace(cfg.focal_range[0], cfg.focal_range[1], FOCAL_STEPS):
+            f = frac * max(h, w)
+            K_f = np.array([[f, 0.0, centre[0]], [0.0, f, centre[1]], [0.0, 0.0, 1.0]])
+            aspects.append(lines.rectangle_aspect(corners, K_f, f, centre))
+    best = np.inf
+    for model in cfg.models():
+        if min(aspects) <= model.aspect <= max(aspects):
+            return 0.0
+        best = min(best, min(abs(a / model.aspect - 1.0) for a in aspects))
+    return float(best)
+
+
+def best_model(corners: Array, shape: tuple[int, ...], cfg: 'SheetConfig', K: Array | None
+               ) -> targets.SheetModel:
+    """
+    Return the configured sheet model whose aspect the imaged rectangle fits best (without
+    intrinsics: at the focal length guess ``cfg.focal_frac``).
+    """
+    models = cfg.models()
+    if len(models) == 1:
+        return models[0]
+    h, w = shape[:2]
+    centre = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+    f = cfg.focal_frac * max(h, w)
+    K_ = K if K is not None else np.array([[f, 0.0, centre[0]], [0.0, f, centre[1]],
+                                           [0.0, 0.0, 1.0]])
+    aspect = lines.rectangle_aspect(corners, K_, f, centre)
+    return min(models, key=lambda m: abs(aspect / m.aspect - 1.0))
 
 
 def one_colour(bgr: Array, max_spread: float, max_saturation: float,

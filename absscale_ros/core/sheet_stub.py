@@ -224,7 +224,7 @@ def _hypothesis(p: Array, ls: list[Array], i: int, j: int, k: int, K: Array, stu
 
 
 def finish(hyp: sheet_partial.Partial, out: sides.Refined, band_px: float, K: Array,
-           aspect: float, slack: float = 1.0
+           aspect: float | tuple[float, ...], slack: float = 1.0
            ) -> tuple[Array, Array, Array, Array, Array, Array] | None:
     """
     Corners of a stub hypothesis from its sides, refined along their seen parts (``out``,
@@ -232,7 +232,8 @@ def finish(hyp: sheet_partial.Partial, out: sides.Refined, band_px: float, K: Ar
     hidden one is where the predicted fourth side (through the third corner) meets the third
     side, not the stub's own poorly determined direction. The stub's corner must agree with
     the one the sheet's ``aspect`` (long / short side) puts at the end of its whole side: an
-    occluder's edge a few pixels past the corner pulls a stub's corner off. ``slack`` > 1:
+    occluder's edge a few pixels past the corner pulls a stub's corner off (several aspects:
+    any of them). ``slack`` > 1:
     a screen after the widest pass only: the stub's edge, and so the third corner, are not
     settled yet, so neither is checked, and the occluder may cut ``slack`` times less deep.
     """
@@ -252,9 +253,11 @@ def finish(hyp: sheet_partial.Partial, out: sides.Refined, band_px: float, K: Ar
     max_sin = np.sin(np.deg2rad(STUB_MAX_DEG))
     if slack == 1.0 and abs(float(ls[2, :2] @ (r - t))) > max_sin * np.hypot(*(r - t)):
         return None  # the stub's edge is not the predicted side (the occluder's own edge)
-    t_pred = far_corners(corner_l, b, ls[1], ls[3], K, aspect)
+    t_pred = [p for a in ((aspect,) if isinstance(aspect, float) else aspect)
+              for p in far_corners(corner_l, b, ls[1], ls[3], K, a)]
     side = float(np.hypot(*(t - corner_l)))
-    if slack == 1.0 and min(np.hypot(*(t - p)) for p in t_pred) > STUB_AGREE * side + 0.5:
+    if slack == 1.0 and (not t_pred or min(np.hypot(*(t - p)) for p in t_pred)
+                         > STUB_AGREE * side + 0.5):
         return None  # the stub's corner is not where the sheet's shape puts it
     # A few pixels of side next to a corner and an occluder give no fair sample of the
     # colours on either side of it: the one-colour tests use the other three sides.

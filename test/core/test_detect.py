@@ -397,6 +397,21 @@ def test_auto_mode_reports_both_kinds():
     assert detect.detection_to_dict(res.detections[1])['target_type'] == 'sheet'
 
 
+def test_auto_mode_names_each_sheet_after_the_size_it_fits():
+    """One search for letter and A4: a real A4 page and tilted rendered sheets of both sizes."""
+    cfg = detect.DetectConfig(target='auto')
+    for _, img, true_px in list(_smartdoc())[:2]:
+        dets = detect.detect(img, cfg).detections
+        assert [d.name for d in dets] == ['a4']
+        assert np.median(_sheet_errors(dets[0], true_px)[1]) <= 0.005
+    for name, size_m in (('letter', (0.2159, 0.2794)), ('a4', (0.210, 0.297))):
+        true_px = st.project_sheet((0.5, -0.3, 0.3), (0.05, 0.0, 0.9), size_m)
+        img = st.render_sheet(_rng(13), true_px)
+        dets = detect.detect(img, cfg, st.K).detections
+        assert [d.name for d in dets] == [name]
+        assert np.hypot(*(dets[0].vertices_px - true_px[detect_sheet._order(true_px)]).T).max() < 1.0
+
+
 def test_bad_config_raises():
     with pytest.raises(ValueError):
         detect.DetectConfig(target='banana')
