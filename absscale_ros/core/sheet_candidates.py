@@ -21,7 +21,11 @@ if TYPE_CHECKING:
 Array = npt.NDArray[np.float64]
 Region = tuple[npt.NDArray[np.int32], float]  # a contour, and how far its outline lies outside
 ROUGH_AREA_SLACK = 0.7  # rough regions may be this much smaller than the area threshold
-FREE_MASK = 3  # index of the edge-free regions in ``masks``
+# Whiteness levels between Otsu's threshold (0) and the 99.5th percentile (1): the last just
+# under the brightest 0.5 % of the image, which an eligible sheet covers, so a sheet on a
+# surface almost as white (a light table top) is cut out of it.
+LEVELS = (0.0, 1.0 / 3.0, 2.0 / 3.0, 0.85)
+FREE_MASK = len(LEVELS)  # index of the edge-free regions in ``masks``
 SAT_SLACK = 0.1  # the region's mean colour may be this much more saturated than its sides'
 RING_PX = (3, 7)  # the ring around a region for its contrast, work px (past a blurred edge)
 RING_STEP = 3  # every third ring pixel is enough for its median
@@ -61,29 +65,41 @@ def whiteness(image_bgr: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint8]:
 def masks(work_bgr: npt.NDArray[np.uint8], work_white: npt.NDArray[np.uint8],
           cfg: 'SheetConfig') -> list[npt.NDArray[np.uint8]]:
     """
-    Return binary candidate masks on the work image.
+    Return binary candidate masks on the work image, cleaned (``_clean``).
 
-    Whiteness above a few thresholds (Otsu and two higher levels) finds a sheet that is
+    Whiteness above a few thresholds (Otsu and higher ``LEVELS``) finds a sheet that is
     clearly brighter than its surface; regions enclosed by colour edges (Canny on BGR) find
     one that differs from the surface mostly in tint, where no grey threshold separates them.
     """
     otsu, _ = cv2.threshold(work_white, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
     hist = np.cumsum(cv2.calcHist([work_white], [0], None, [256], [0, 256]).ravel())
     top = float(np.searchsorted(hist, 0.995 * hist[-1]))  # 99.5th percentile
+    # Flat morphology commutes with thresholding: the whiteness image is cleaned once, and
+    # each level's mask is the cleaned mask of that level.
+    clean_white = _clean(work_white)
     # (cv2.threshold on uint8 tests > floor(t): the same as > t)
-    masks = [cv2.threshold(work_white, t, 1, cv2.THRESH_BINARY)[1]
-             for t in (otsu, otsu + (top - otsu) / 3.0, otsu + 2.0 * (top - otsu) / 3.0)]
+    masks = [cv2.threshold(clean_white, t, 1, cv2.THRESH_BINARY)[1]
+             for t in (otsu + f * (top - otsu) for f in LEVELS)]
     blurred = cv2.GaussianBlur(work_bgr, (3, 3), 0)
     edges = cv2.Canny(blurred, cfg.canny_low, cfg.canny_high)
     edges = cv2.dilate(edges, np.ones((3, 3), np.uint8))
     free = cv2.threshold(edges, 0, 1, cv2.THRESH_BINARY_INV)[1]
-    masks.append(free)  # edge-free regions: a sheet's blank areas
+    masks.append(_clean(free))  # edge-free regions: a sheet's blank areas
     # Everything the image border cannot reach without crossing an edge: objects on the
     # surface, with their text and drawings filled in.
     flood = np.pad(free, 1, constant_values=1)
     cv2.floodFill(flood, None, (0, 0), 2)
-    masks.append(cv2.compare(flood[1:-1, 1:-1], 2, cv2.CMP_NE) // 255)
+    masks.append(_clean(cv2.compare(flood[1:-1, 1:-1], 2, cv2.CMP_NE) // 255))
     return masks
+
+
+def _clean(mask: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint8]:
+    """
+    Closing heals thin dark lines across the sheet (text, a cable); the paper's 3x3 opening,
+    twice, then drops thin bridges to neighbouring objects. (Binary or grey: flat.)
+    """
+    mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8))
+    return cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8), iterations=2)
 
 
 def candidates(work_bgr: npt.NDArray[np.uint8], cfg: 'SheetConfig'
@@ -97,15 +113,10 @@ def candidates(work_bgr: npt.NDArray[np.uint8], cfg: 'SheetConfig'
     # Opening and the contour through boundary pixel centres shrink a small region by a pixel
     # all round: a loose test here, the exact one on the refined full-resolution corners.
     min_area = ROUGH_AREA_SLACK * cfg.min_area_frac * work_white.shape[0] * work_white.shape[1]
-    kernel = np.ones((3, 3), np.uint8)
     quads: list[Array] = []
     regions: list[Region] = []
     whites: list[float] = []
     for i, mask in enumerate(masks(work_bgr, work_white, cfg)):
-        # Closing heals thin dark lines across the sheet (text, a cable); the paper's 3x3
-        # opening, twice, then drops thin bridges to neighbouring objects.
-        mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8))
-        mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, kernel, iterations=2)
         contours, tree = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
         # An edge-free region stops short of the outline by the dilated edge's half width.
         grow = FREE_INSET_PX if i == FREE_MASK else 0.0
