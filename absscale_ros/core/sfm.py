@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from absscale_ros.core import errors, landmark_quality, local_map, sfm_graph, sfm_map
+from absscale_ros.core import aliasing, errors, landmark_quality, local_map, sfm_graph, sfm_map
 from absscale_ros.core import sfm_vertices, twoview
 from absscale_ros.core import features as feat
 from absscale_ros.core import vertex_matching as vm
@@ -42,10 +42,24 @@ class SfmConfig:
     max_pending: int = 6  # keyframes kept while waiting for a well-conditioned initial pair
     max_failures: int = 2  # consecutive unregistrable keyframes (dropped) before a new segment
     match_unclaimed_only: bool = False  # older neighbours see only keypoints still unmatched
+    # A registration whose velocity (since the newest keyframe) differs from the velocity
+    # before by more than this times the faster of the two is refused when the three keyframes
+    # span at most ``motion_check_s``: a camera does not reverse in a fraction of a second, but
+    # a repeated texture (pavers) matched one period off moves the pose by that period.
+    max_velocity_change: float = 1.2  # (0: off; a reversal at equal speed is 2, a right turn 1.4)
+    motion_check_s: float = 1.0
+    # A pose that the correspondences off their dominant plane support less than this share
+    # as well as those on it (their inlier rates) is refused, given ``min_off_plane`` of them:
+    # the texture's plane carries an aliased pose, the rest of the scene does not (0: off).
+    min_off_plane_support: float = 0.35
+    min_off_plane: int = 20
+    plane_tol: float = 0.02  # plane thickness / median spread of the landmarks
 
     def __post_init__(self) -> None:
         if self.match_window < 1 or self.relocalise_window < self.match_window or \
-                self.min_pnp_inliers < 6 or self.pnp_px <= 0.0 or self.max_pending < 2:
+                self.min_pnp_inliers < 6 or self.pnp_px <= 0.0 or self.max_pending < 2 or \
+                min(self.max_velocity_change, self.motion_check_s, self.min_off_plane_support,
+                    self.plane_tol) < 0.0 or self.min_off_plane < 1:
             raise ValueError(f'bad sfm config {self}')
 
 
@@ -201,7 +215,7 @@ class IncrementalSfm:
             m.observe(lm_id, b.kf_id, b.features.points_px[j], int(j))
 
     def _register(self, seg: Segment, kf: sfm_map.MapKeyframe) -> tuple[str, str]:
-        ids = sorted(seg.map.keyframes)
+        ids, why = sorted(seg.map.keyframes), ''
         for status, window in (('registered', self.cfg.match_window),
                                ('relocalised', self.cfg.relocalise_window)):
             neighbours = [seg.map.keyframes[i] for i in ids[-window:]][::-1]
@@ -210,7 +224,11 @@ class IncrementalSfm:
                 if not neighbours:
                     break
             matches = self._match_neighbours(neighbours, kf)
-            inliers = self._pnp(seg.map, kf, neighbours, matches)
+            inliers, disowned = self._pnp(seg.map, kf, neighbours, matches)
+            jump = self._fooled(seg.map, kf, disowned) if inliers is not None else None
+            if jump is not None:
+                why = jump
+                continue
             if inliers is not None:
                 self._failures = 0
                 seg.map.keyframes[kf.kf_id] = kf
@@ -230,13 +248,24 @@ class IncrementalSfm:
             return self._restart(seg, kf)
         self._failures += 1
         if self._failures < self.cfg.max_failures:
-            return 'rejected', (f'keyframe {kf.kf_id} could not be registered or relocalised: '
-                                f'dropped ({self._failures} in a row)')
+            return 'rejected', (f'keyframe {kf.kf_id} could not be registered or '
+                                f'relocalised{why}: dropped ({self._failures} in a row)')
         self._failures = 0
         self.segments.append(self._new_segment())
         self.current.pending.append(kf)
-        return 'new_segment', (f'keyframe {kf.kf_id} could not be registered or relocalised: '
-                               f'segment {len(self.segments) - 1} kept, new segment started')
+        return 'new_segment', (f'keyframe {kf.kf_id} could not be registered or relocalised{why}: '
+                               f'segment {len(self.segments) - 2} kept, new segment started')
+
+    def _fooled(self, m: sfm_map.SfmMap, kf: sfm_map.MapKeyframe,
+                disowned: str | None) -> str | None:
+        """Why ``kf``'s new pose looks like a repeated texture's (None: it does not)."""
+        prev = [m.keyframes[i] for i in sorted(m.keyframes)[-2:]] + [kf]
+        if len(prev) < 3 or self.cfg.max_velocity_change <= 0.0:
+            return disowned
+        return aliasing.velocity_reason(
+            np.array([k.T_world_cam[:3, 3] for k in prev]),
+            np.array([k.stamp_ns for k in prev], np.int64), self.cfg.max_velocity_change,
+            self.cfg.motion_check_s) or disowned
 
     def _restart(self, seg: Segment, kf: sfm_map.MapKeyframe) -> tuple[str, str]:
         """
@@ -272,7 +301,10 @@ class IncrementalSfm:
 
     def _pnp(self, m: sfm_map.SfmMap, kf: sfm_map.MapKeyframe,
              neighbours: list[sfm_map.MapKeyframe],
-             matches: dict[int, npt.NDArray[np.int64]]) -> list[tuple[int, int]] | None:
+             matches: dict[int, npt.NDArray[np.int64]]
+             ) -> tuple[list[tuple[int, int]] | None, str | None]:
+        """PnP inliers as (landmark, keypoint) pairs (None: too few), and why the structure off
+        the dominant plane disowns the pose (None: it does not)."""
         corr: dict[int, int] = {}  # keypoint of kf -> landmark
         claimed: set[int] = set()
         for n in neighbours:
@@ -282,7 +314,7 @@ class IncrementalSfm:
                     corr[int(j)] = lm_id
                     claimed.add(lm_id)
         if len(corr) < self.cfg.min_pnp_inliers:
-            return None
+            return None, None
         kps = np.array(list(corr), np.int64)
         lms = [corr[int(j)] for j in kps]
         obj = np.array([m.landmarks[i].point_world for i in lms])
@@ -292,14 +324,17 @@ class IncrementalSfm:
                                                  reprojectionError=self.cfg.pnp_px,
                                                  confidence=0.999, flags=cv2.SOLVEPNP_EPNP)
         if not ok or inl is None or len(inl) < self.cfg.min_pnp_inliers:
-            return None
+            return None, None
         inl = inl.ravel()
+        disowned = None if self.cfg.min_off_plane_support <= 0.0 else \
+            aliasing.off_plane_reason(obj, inl, self.cfg.plane_tol, self.cfg.min_off_plane,
+                                      self.cfg.min_off_plane_support, self._rng)
         _, rvec, tvec = cv2.solvePnP(obj[inl], img[inl], self.K, None, rvec, tvec, True,
                                      cv2.SOLVEPNP_ITERATIVE)
         R = cv2.Rodrigues(rvec)[0]  # camera-from-world
         kf.T_world_cam = np.eye(4)
         kf.T_world_cam[:3, :3], kf.T_world_cam[:3, 3] = R.T, (-R.T @ tvec).ravel()
-        return [(lms[i], int(kps[i])) for i in inl]
+        return [(lms[i], int(kps[i])) for i in inl], disowned
 
     def _triangulate(self, m: sfm_map.SfmMap, a: sfm_map.MapKeyframe, b: sfm_map.MapKeyframe,
                      pairs: npt.NDArray[np.int64]) -> int:

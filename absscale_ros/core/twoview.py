@@ -22,10 +22,16 @@ class TwoViewConfig:
     max_h_deviation: float = 0.02  # |M M^T - I| of M = K^-1 H K (det 1) below this: rotation
     min_angle_deg: float = 1.0  # least ray angle of a new landmark
     max_reproj_px: float = 3.0  # largest reprojection error of a new landmark
+    # A second motion (the first's outliers, translation this far off) explaining this share
+    # of the first's points makes the pair ambiguous: repeated texture (pavers, tiles) matched
+    # one period off fits a rigid wrong motion as well as the true one fits (1: off).
+    max_second_motion: float = 0.25
+    second_motion_deg: float = 15.0
 
     def __post_init__(self) -> None:
         if min(self.ransac_px, self.init_min_angle_deg, self.min_angle_deg,
-               self.max_reproj_px) <= 0.0 or self.init_min_points < 8:
+               self.max_reproj_px, self.max_second_motion) <= 0.0 or \
+                self.init_min_points < 8 or self.second_motion_deg < 0.0:
             raise ValueError(f'bad two-view config {self}')
 
 
@@ -106,7 +112,29 @@ def initialise(K: FloatArray, pts_a_px: FloatArray, pts_b_px: FloatArray, cfg: T
     angle = median_angle_deg(np.eye(4), T_b, pts[ok])
     if angle < cfg.init_min_angle_deg:
         raise errors.DegenerateGeometryError(f'too little parallax: median angle {angle:.2f} deg')
+    rival = _second_motion(K, pts_a_px[~ok], pts_b_px[~ok], T_b[:3, 3], cfg)
+    if rival >= cfg.max_second_motion * ok.sum():
+        raise errors.DegenerateGeometryError(
+            f'ambiguous pair: a second motion explains {rival} matches against {int(ok.sum())} '
+            f'(repeated texture?)')
     return T_b, pts, ok
+
+
+def _second_motion(K: FloatArray, pts_a_px: FloatArray, pts_b_px: FloatArray,
+                   centre_b: FloatArray, cfg: TwoViewConfig) -> int:
+    """
+    Points in front of both cameras under the best motion of the matches the first motion left
+    out, if its baseline points more than ``second_motion_deg`` away from ``centre_b`` (else 0).
+    """
+    if len(pts_a_px) < 6:
+        return 0
+    E, inl = cv2.findEssentialMat(pts_a_px, pts_b_px, K, cv2.RANSAC, 0.999, cfg.ransac_px)
+    if E is None or E.shape != (3, 3):
+        return 0
+    n, R, t, _ = cv2.recoverPose(E, pts_a_px, pts_b_px, K, mask=inl.copy())
+    c = (-R.T @ t).ravel()
+    cos = float(c @ centre_b) / (np.linalg.norm(c) * np.linalg.norm(centre_b) + 1e-300)
+    return int(n) if cos < np.cos(np.deg2rad(cfg.second_motion_deg)) else 0
 
 
 def _is_rotation(K: FloatArray, pts_a_px: FloatArray, pts_b_px: FloatArray,
