@@ -217,7 +217,8 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
         groups = [hyps]  # one stub sheet at most: a fallback
         aspect = tuple(m.aspect for m in cfg.models())
         _accept_partial(image_bgr, groups,
-                        lambda hyp, out: sheet_stub.finish(hyp, out, band, K_, aspect), band,
+                        lambda hyp, out: sheet_stub.finish(hyp, out, band, K_, aspect,
+                                                           image_bgr=image_bgr), band,
                         cfg, K, found, rough_aspect=False, checked=sheet_stub.CHECKED,
                         fine_bands=sheet_stub.FINE_BANDS,
                         screen=lambda hyp, out: sheet_stub.finish(
@@ -251,7 +252,8 @@ def _line_candidates(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig
 # A sheet found: (score, (4, 2) corners, outline of the seen part, (4,) vertex scores or None).
 Found = tuple[float, Array, Array, Array | None]
 Refined = sides.Refined
-Refined6 = tuple[Array, Array, Array, Array, Array, Array]  # and the seen outline
+# and the seen outline (and, from a stub, (4,) vertex score factors)
+Refined6 = tuple[Array, ...]
 
 
 def _accept(image_bgr: npt.NDArray[np.uint8], quad_full: Array, band: float, cfg: SheetConfig,
@@ -325,8 +327,11 @@ def _accept_partial(image_bgr: npt.NDArray[np.uint8], groups: list[list[sheet_pa
                 continue
             support = float(out[1].mean())
             vs = np.array([support] * 3 + [0.5 * support * float(hyp.seen_frac.min())])
-            if best is None or support > best[0]:
-                best = (support, (float(vs.mean()), out[0], out[5], vs))
+            # A corner placed by the aspect: scored lower, and ranked after corners seen.
+            rank = support * float(out[6].min()) if len(out) > 6 else support
+            vs = vs * out[6] if len(out) > 6 else vs
+            if best is None or rank > best[0]:
+                best = (rank, (float(vs.mean()), out[0], out[5], vs))
         if best is not None and all(np.abs(best[1][1] - f[1]).max() > 4.0 for f in found):
             found.append(best[1])
 
