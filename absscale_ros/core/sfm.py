@@ -54,12 +54,13 @@ class SfmConfig:
     min_off_plane_support: float = 0.35
     min_off_plane: int = 20
     plane_tol: float = 0.02  # plane thickness / median spread of the landmarks
+    plane_check_px: float = 8.0  # a correspondence this close to the pose supports it, px
 
     def __post_init__(self) -> None:
         if self.match_window < 1 or self.relocalise_window < self.match_window or \
                 self.min_pnp_inliers < 6 or self.pnp_px <= 0.0 or self.max_pending < 2 or \
                 min(self.max_velocity_change, self.motion_check_s, self.min_off_plane_support,
-                    self.plane_tol) < 0.0 or self.min_off_plane < 1:
+                    self.plane_tol, self.plane_check_px) < 0.0 or self.min_off_plane < 1:
             raise ValueError(f'bad sfm config {self}')
 
 
@@ -326,11 +327,15 @@ class IncrementalSfm:
         if not ok or inl is None or len(inl) < self.cfg.min_pnp_inliers:
             return None, None
         inl = inl.ravel()
-        disowned = None if self.cfg.min_off_plane_support <= 0.0 else \
-            aliasing.off_plane_reason(obj, inl, self.cfg.plane_tol, self.cfg.min_off_plane,
-                                      self.cfg.min_off_plane_support, self._rng)
         _, rvec, tvec = cv2.solvePnP(obj[inl], img[inl], self.K, None, rvec, tvec, True,
                                      cv2.SOLVEPNP_ITERATIVE)
+        disowned = None
+        if self.cfg.min_off_plane_support > 0.0:  # loose: off-plane points are less accurate
+            err = np.linalg.norm(cv2.projectPoints(obj, rvec, tvec, self.K, None)[0][:, 0] - img,
+                                 axis=1)
+            disowned = aliasing.off_plane_reason(
+                obj, np.flatnonzero(err < self.cfg.plane_check_px), self.cfg.plane_tol,
+                self.cfg.min_off_plane, self.cfg.min_off_plane_support, self._rng)
         R = cv2.Rodrigues(rvec)[0]  # camera-from-world
         kf.T_world_cam = np.eye(4)
         kf.T_world_cam[:3, :3], kf.T_world_cam[:3, 3] = R.T, (-R.T @ tvec).ravel()
