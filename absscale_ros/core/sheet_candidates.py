@@ -25,6 +25,9 @@ ROUGH_AREA_SLACK = 0.7  # rough regions may be this much smaller than the area t
 # under the brightest 0.5 % of the image, which an eligible sheet covers, so a sheet on a
 # surface almost as white (a light table top) is cut out of it.
 LEVELS = (0.0, 1.0 / 3.0, 2.0 / 3.0, 0.85)
+# ... for whole quadrilaterals only: a region cut at the last level is a pixel or two smaller, and
+# its five-sided outline, listed first (whitest), misled the hidden-corner paths (unseen seeds).
+QUAD_ONLY_MASK = 3
 FREE_MASK = len(LEVELS)  # index of the edge-free regions in ``masks``
 SAT_SLACK = 0.1  # the region's mean colour may be this much more saturated than its sides'
 RING_PX = (3, 7)  # the ring around a region for its contrast, work px (past a blurred edge)
@@ -128,7 +131,7 @@ def candidates(work_bgr: npt.NDArray[np.uint8], cfg: 'SheetConfig'
             # hidden-corner paths (their hypotheses fail or are refused there).
             x, y, w, h = cv2.boundingRect(c)
             inner = min(x, y) > 1 and x + w < work_white.shape[1] - 1 and \
-                y + h < work_white.shape[0] - 1
+                y + h < work_white.shape[0] - 1 and i != QUAD_ONLY_MASK
             quad = lines.rough_quad(c) if solidity >= cfg.min_solidity else None
             quad = None if quad is None else offset(quad, grow)
             # A sheet cut by the image border has no trustworthy corners, and another mask's
