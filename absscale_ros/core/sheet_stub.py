@@ -348,9 +348,9 @@ def finish(hyp: sheet_partial.Partial, out: sides.Refined, band_px: float, K: Ar
         seen_to = visible_end(image_bgr, corner_l, ends[0], ls[1], inside[1])
         if abs(seen_to - length) > PLACED_AGREE * length + 1.0:
             return None  # the side is not seen to end where the aspect puts its corner
-        if any(edge_goes_on(image_bgr, ls[0], p, q, band_px) for p, q in
-               ((b, corner_l), (corner_l, b))) or \
-                edge_goes_on(image_bgr, ls[1], ends[0], corner_l, band_px):
+        if any(edge_goes_on(image_bgr, ls[k], p, q, band_px) for k, p, q in
+               ((0, b, corner_l), (0, corner_l, b), (1, ends[0], corner_l),
+                (3, hyp.seen_ends[3, 0], b))):
             return None  # an edge that runs on past a seen corner: an occluder's, not a side
         t, factors[2] = ends[0], 0.5
         r = hidden_corner(t, hyp.corners[3], vanish, ls[3])
