@@ -15,6 +15,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy import stats
 
+from absscale_ros.core import aliasing
 from absscale_ros.core.errors import DegenerateGeometryError, NotObservableError
 
 FloatArray = npt.NDArray[np.float64]
@@ -36,12 +37,17 @@ class ScaleConfig:
     # The vertex residuals only see noise at the target; the reconstruction's own scale drift
     # between the target and the rest of the scene adds this much (relative, 1 sigma).
     drift_sigma_rel: float = 0.0
+    # A keyframe path whose velocity changes by more than this times the speed within
+    # ``path_jump_s`` has a link the SfM got wrong (a repeated texture matched a period off):
+    # the map is bent there and no one factor scales it, so none is claimed (0: off).
+    max_path_jump: float = 1.2
+    path_jump_s: float = 1.0
 
     def __post_init__(self) -> None:
         if self.min_vertices < 2 or self.min_observations < 1:
             raise ValueError('min_vertices must be >= 2 and min_observations >= 1')
-        if self.drift_sigma_rel < 0.0:
-            raise ValueError('drift_sigma_rel must be >= 0')
+        if min(self.drift_sigma_rel, self.max_path_jump, self.path_jump_s) < 0.0:
+            raise ValueError('drift_sigma_rel, max_path_jump and path_jump_s must be >= 0')
         if not 0.0 < self.confidence < 1.0 or self.max_relative_sigma <= 0.0:
             raise ValueError('confidence must be in (0, 1) and max_relative_sigma > 0')
 
@@ -307,6 +313,24 @@ def estimate(objects: list[ObjectVertices], cfg: ScaleConfig,
                                  f'{100 * cfg.max_relative_sigma:.2f}% of the factor')
     return ScaleEstimate(factor, sigma, (factor - half, factor + half),
                          x, y, factor * x - y, len(measured), rejected)
+
+
+def check_path(centres: FloatArray, stamps_ns: npt.NDArray[np.int64], cfg: ScaleConfig) -> None:
+    """
+    Refuse a keyframe path with an implausible jump (see ``ScaleConfig.max_path_jump``).
+
+    :param centres: (N, 3) keyframe camera centres, SfM units, in stamp order.
+    :param stamps_ns: (N,) their stamps.
+    :raises NotObservableError: naming the keyframe where the path jumps.
+    """
+    if cfg.max_path_jump <= 0.0:
+        return
+    for k in range(len(centres) - 2):
+        why = aliasing.velocity_reason(centres[k:k + 3], stamps_ns[k:k + 3], cfg.max_path_jump,
+                                       cfg.path_jump_s)
+        if why is not None:
+            raise NotObservableError(f'the keyframe path jumps at keyframe {k + 2}{why}: the map '
+                                     f'is bent there, no single factor scales it')
 
 
 def group_objects(points: FloatArray, object_ids: npt.NDArray[np.int64],

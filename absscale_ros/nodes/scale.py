@@ -91,13 +91,12 @@ class ScaleNode(Node):
         if stamp_ns == self._estimated_ns or (self._require_path and path_ns != stamp_ns):
             return []
         self._estimated_ns = stamp_ns
-        keyframes = None if path_ns != stamp_ns else \
-            len(conversions.path_msg_to_poses(self._path)[1])
-        outputs = self._estimate(msg, keyframes)
+        path = None if path_ns != stamp_ns else conversions.path_msg_to_poses(self._path)
+        outputs = self._estimate(msg, path)
         self._diagnose(msg.header.stamp)
         return outputs
 
-    def _estimate(self, msg: PointCloud2, keyframes: int | None) -> list[str]:
+    def _estimate(self, msg: PointCloud2, path: Any) -> list[str]:
         pts = conversions.cloud_msg_to_array(msg)
         xyz = np.stack([pts[a] for a in 'xyz'], axis=1).astype(np.float64) if len(pts) else \
             np.zeros((0, 3))
@@ -106,7 +105,9 @@ class ScaleNode(Node):
             self._sheet_alternatives) \
             if len(pts) else []
         try:
-            est = scale.estimate(objects, self._cfg, keyframes)
+            if path is not None:  # (N, 7) poses and (N,) stamps of the same keyframe
+                scale.check_path(path[0][:, :3], np.asarray(path[1], np.int64), self._cfg)
+            est = scale.estimate(objects, self._cfg, None if path is None else len(path[1]))
         except AbsScaleError as err:
             self._why_not = str(err)
             self.get_logger().info(f'no metric scale yet: {err}', throttle_duration_sec=10.0)

@@ -138,3 +138,22 @@ def test_too_few_keyframes_claim_nothing() -> None:
     with pytest.raises(NotObservableError, match='keyframes'):
         scale.estimate([obj], CFG, keyframes=5)
     assert scale.estimate([obj], CFG, keyframes=12).factor == pytest.approx(1.0)
+
+
+def test_a_jump_in_the_keyframe_path_claims_nothing() -> None:
+    # The rendered outdoor sample's true camera path, every 5th frame (about keyframe spacing):
+    # smooth, so it passes; one keyframe put a ground-texture period (2.56 m) back, as an
+    # aliased registration leaves it in a bent map, refuses the claim and names the keyframe.
+    import json
+    from pathlib import Path
+    gt_path = Path(__file__).parents[2] / 'bags' / 'outdoor_cube_sample.mcap.gt.json'
+    frames = json.loads(gt_path.read_text())['frames'][::5]
+    centres = np.array([np.array(f['T_world_cam'])[:3, 3] for f in frames])
+    stamps = np.array([f['stamp_ns'] for f in frames], np.int64)
+    cfg = scale.ScaleConfig()
+    scale.check_path(centres, stamps, cfg)
+    step = centres[21] - centres[20]
+    centres[21:] -= 2.56 * step / np.linalg.norm(step)  # the rest registered on the jumped one
+    with pytest.raises(NotObservableError, match='jumps at keyframe 21'):
+        scale.check_path(centres, stamps, cfg)
+    scale.check_path(centres, stamps, scale.ScaleConfig(max_path_jump=0.0))  # off
