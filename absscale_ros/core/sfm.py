@@ -4,8 +4,10 @@ Incremental structure from motion over keyframes (paper Step 3), one call per ke
 State is explicit: ``IncrementalSfm`` holds the map segments. A keyframe is registered by PnP
 against the landmarks its features match in the last few keyframes; if that fails it is
 relocalised against the whole segment; if that fails too a new segment is started (the old one
-is kept unchanged). New landmarks are triangulated with the matched keyframes, and the segment's
-``SegmentGraph`` (GTSAM) refines everything.
+is kept unchanged). A pose or an initial pair that a repeated texture may have produced (see
+``aliasing``, ``twoview.initialise``) counts as a failure: a new segment beats a bent map. New
+landmarks are triangulated with the matched keyframes, and the segment's ``SegmentGraph``
+(GTSAM) refines everything.
 """
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
