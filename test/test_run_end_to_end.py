@@ -127,6 +127,8 @@ def test_live_run_reports_what_each_node_handled(tmp_path: Path) -> None:
                                         else 'frames']
         by_rate = skipped[node].get('skipped_by_rate', 0)
         assert 0 < handled <= 30 and skipped[node]['count'] == 30 - handled - by_rate
-    # 30 fps into a 10 Hz cap: about two frames in three passed over, not lost.
-    assert skipped['vertex_detector']['skipped_by_rate'] >= 15
+    # 1 s of 30 fps video into a 10 Hz cap: at most 11 frames looked at, whatever the load
+    # (frames lost to QoS when the machine is busy leave fewer for the cap to pass over).
+    assert report['nodes']['vertex_detector']['frames'] <= 11
+    assert skipped['vertex_detector'].get('skipped_by_rate', 0) > 0
     assert report['latency_s'] == {'updates': 0}  # no scale, so no /scaled_cloud update

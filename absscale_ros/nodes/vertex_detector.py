@@ -54,7 +54,7 @@ class VertexDetectorNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('vertex_detector', **kwargs)
         target = self.declare_parameter('target', 'auto').value
-        auto_sheets = self.declare_parameter('auto_sheets', ['letter']).value
+        auto_sheets = self.declare_parameter('auto_sheets', ['letter', 'a4']).value
         qos = self.declare_parameter('qos', 'reliable').value  # reliable | sensor_data
         rate = float(self.declare_parameter('live_max_rate_hz', 10.0).value)
         # Offline (reliable) every frame is detected: the replay is lossless.
