@@ -315,6 +315,9 @@ def estimate(objects: list[ObjectVertices], cfg: ScaleConfig,
                          x, y, factor * x - y, len(measured), rejected)
 
 
+SLOW_STEP_SHARE = 0.3  # steps shorter than this share of the path's median are not judged
+
+
 def check_path(centres: FloatArray, stamps_ns: npt.NDArray[np.int64], cfg: ScaleConfig) -> None:
     """
     Refuse a keyframe path with an implausible jump (see ``ScaleConfig.max_path_jump``).
@@ -323,9 +326,15 @@ def check_path(centres: FloatArray, stamps_ns: npt.NDArray[np.int64], cfg: Scale
     :param stamps_ns: (N,) their stamps.
     :raises NotObservableError: naming the keyframe where the path jumps.
     """
-    if cfg.max_path_jump <= 0.0:
+    if cfg.max_path_jump <= 0.0 or len(centres) < 3:
         return
+    steps = np.linalg.norm(np.diff(centres, axis=0), axis=1)
+    # Two short steps (a camera nearly still or turning on the spot) are mostly pose noise, and
+    # noise alone reverses their velocity; an aliased link is a long step (a texture period).
+    floor = SLOW_STEP_SHARE * float(np.median(steps))
     for k in range(len(centres) - 2):
+        if max(steps[k], steps[k + 1]) < floor:
+            continue
         why = aliasing.velocity_reason(centres[k:k + 3], stamps_ns[k:k + 3], cfg.max_path_jump,
                                        cfg.path_jump_s)
         if why is not None:

@@ -157,3 +157,16 @@ def test_a_jump_in_the_keyframe_path_claims_nothing() -> None:
     with pytest.raises(NotObservableError, match='jumps at keyframe 21'):
         scale.check_path(centres, stamps, cfg)
     scale.check_path(centres, stamps, scale.ScaleConfig(max_path_jump=0.0))  # off
+
+
+def test_a_nearly_still_camera_is_not_a_jump() -> None:
+    # Steps of 1 cm around 1 m ones: a pose error of a few mm reverses their velocity, which
+    # must not refuse a path whose real steps are smooth; the same reversal at full steps does.
+    stamps = np.arange(8, dtype=np.int64) * 300_000_000
+    centres = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [2.01, 0, 0], [2.005, 0.004, 0],
+                        [2.015, 0, 0], [3.015, 0, 0], [4.015, 0, 0]], float)
+    scale.check_path(centres, stamps, scale.ScaleConfig())
+    centres[4] = [1.0, 0.0, 0.0]  # a full step backwards and forwards again
+    centres[5:] += 1.0
+    with pytest.raises(NotObservableError, match='jumps at keyframe'):
+        scale.check_path(centres, stamps, scale.ScaleConfig())
