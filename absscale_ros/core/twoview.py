@@ -96,15 +96,13 @@ def initialise(K: FloatArray, pts_a_px: FloatArray, pts_b_px: FloatArray, cfg: T
     if len(pts_a_px) < cfg.init_min_points:
         raise errors.DegenerateGeometryError(f'{len(pts_a_px)} matches < {cfg.init_min_points}')
     cv2.setRNGSeed(int(rng.integers(2**31 - 1)))
-    E, inl = cv2.findEssentialMat(pts_a_px, pts_b_px, K, cv2.RANSAC, 0.999, cfg.ransac_px)
-    if E is None or E.shape != (3, 3):
+    motion = _essential_motion(K, pts_a_px, pts_b_px, cfg)
+    if motion is None:
         raise errors.DegenerateGeometryError('no essential matrix')
     if _is_rotation(K, pts_a_px, pts_b_px, cfg):
         raise errors.DegenerateGeometryError('pure rotation: a rotation homography explains '
                                              'the matches')
-    _, R, t, _ = cv2.recoverPose(E, pts_a_px, pts_b_px, K, mask=inl.copy())
-    T_b = np.eye(4)  # recoverPose gives b-from-a: x_b = R x_a + t
-    T_b[:3, :3], T_b[:3, 3] = R.T, (-R.T @ t).ravel()
+    T_b, inl, _ = motion
     pts, ok = triangulate(K, np.eye(4), T_b, pts_a_px, pts_b_px, cfg)
     ok &= inl.ravel().astype(bool)
     if ok.sum() < cfg.init_min_points:
@@ -126,15 +124,28 @@ def _second_motion(K: FloatArray, pts_a_px: FloatArray, pts_b_px: FloatArray,
     Points in front of both cameras under the best motion of the matches the first motion left
     out, if its baseline points more than ``second_motion_deg`` away from ``centre_b`` (else 0).
     """
-    if len(pts_a_px) < 6:
+    motion = _essential_motion(K, pts_a_px, pts_b_px, cfg) if len(pts_a_px) >= 6 else None
+    if motion is None:
         return 0
+    T_b, _, n = motion
+    c = T_b[:3, 3]
+    cos = float(c @ centre_b) / (np.linalg.norm(c) * np.linalg.norm(centre_b) + 1e-300)
+    return n if cos < np.cos(np.deg2rad(cfg.second_motion_deg)) else 0
+
+
+def _essential_motion(K: FloatArray, pts_a_px: FloatArray, pts_b_px: FloatArray,
+                      cfg: TwoViewConfig) -> tuple[FloatArray, npt.NDArray[np.uint8], int] | None:
+    """
+    RANSAC essential matrix and its pose: T_world_cam of b with a at the origin (4, 4), the
+    RANSAC inlier mask (N, 1) and the number of points in front of both; None without an E.
+    """
     E, inl = cv2.findEssentialMat(pts_a_px, pts_b_px, K, cv2.RANSAC, 0.999, cfg.ransac_px)
     if E is None or E.shape != (3, 3):
-        return 0
+        return None
     n, R, t, _ = cv2.recoverPose(E, pts_a_px, pts_b_px, K, mask=inl.copy())
-    c = (-R.T @ t).ravel()
-    cos = float(c @ centre_b) / (np.linalg.norm(c) * np.linalg.norm(centre_b) + 1e-300)
-    return int(n) if cos < np.cos(np.deg2rad(cfg.second_motion_deg)) else 0
+    T_b = np.eye(4)  # recoverPose gives b-from-a: x_b = R x_a + t
+    T_b[:3, :3], T_b[:3, 3] = R.T, (-R.T @ t).ravel()
+    return T_b, inl, int(n)
 
 
 def _is_rotation(K: FloatArray, pts_a_px: FloatArray, pts_b_px: FloatArray,

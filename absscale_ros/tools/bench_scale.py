@@ -26,12 +26,16 @@ def evaluate_bag(bag: str, config: str | None) -> dict[str, Any]:
     """Run the graph on ``bag`` and measure it against its gt.json."""
     from absscale_ros import graph
     from absscale_ros.sim import groundtruth
-    from rclpy.serialization import deserialize_message
     gt = groundtruth.load(f'{bag}.gt.json')
     report = graph.run_graph(bag, config or str(gt['scene']['name']),  # type: ignore[index]
                              graph.RunOptions(mode='step'))
-    msgs = {t: deserialize_message(d, c) for t, (c, d) in report.pop('_latest').items()}
-    return measure(bag, report, msgs, gt)
+    return measure(bag, report, _deserialized(report.pop('_latest')), gt)
+
+
+def _deserialized(latest: dict[str, tuple[Any, bytes]]) -> dict[str, Any]:
+    """A run's last messages by topic, from the (message class, CDR bytes) it kept."""
+    from rclpy.serialization import deserialize_message
+    return {t: deserialize_message(d, c) for t, (c, d) in latest.items()}
 
 
 def against_truth_file(bag: str, report: dict[str, Any],
@@ -46,9 +50,7 @@ def against_truth_file(bag: str, report: dict[str, Any],
     if not gt_path.exists():
         return {}
     from absscale_ros.sim import groundtruth
-    from rclpy.serialization import deserialize_message
-    msgs = {t: deserialize_message(d, c) for t, (c, d) in latest.items()}
-    return measure(bag, report, msgs, groundtruth.load(gt_path), lengths=False)
+    return measure(bag, report, _deserialized(latest), groundtruth.load(gt_path), lengths=False)
 
 
 def measure(bag: str, report: dict[str, Any], msgs: dict[str, Any], gt: dict[str, Any],

@@ -17,17 +17,24 @@ sys.path.insert(0, str(Path(__file__).parents[1] / 'core'))
 import synth_targets as st  # noqa: E402
 
 
-def test_cloud_per_frame_ack_and_debug(context) -> None:
-    node = VertexDetectorNode(context=context,
-                              parameter_overrides=[Parameter('target', value='cube')])
-    helper = Node('vd_test_helper', context=context)
-    clouds, acks, debug = [], [], []
-    helper.create_subscription(PointCloud2, '/absscale/vertices', clouds.append, 10)
-    helper.create_subscription(Header, '/absscale/ack', acks.append, 10)
-    pub = helper.create_publisher(Image, '/absscale/frames', 10)
+def _detector_and_camera(context, name: str, overrides: list[Parameter], depth: int):
+    """A cube detector, a helper node publishing frames to it, its clouds and an executor."""
+    node = VertexDetectorNode(context=context, parameter_overrides=[
+        Parameter('target', value='cube'), *overrides])
+    helper = Node(name, context=context)
+    clouds: list[PointCloud2] = []
+    helper.create_subscription(PointCloud2, '/absscale/vertices', clouds.append, depth)
+    pub = helper.create_publisher(Image, '/absscale/frames', depth)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
     executor.add_node(helper)
+    return node, helper, pub, clouds, executor
+
+
+def test_cloud_per_frame_ack_and_debug(context) -> None:
+    node, helper, pub, clouds, executor = _detector_and_camera(context, 'vd_test_helper', [], 10)
+    acks, debug = [], []
+    helper.create_subscription(Header, '/absscale/ack', acks.append, 10)
     rng = np.random.default_rng(0)
     img, _, _ = st.render_cube(rng, *st.cube_pose(35, 25, 5.0))
     empty = st._finish(st._background(rng), rng)
@@ -56,16 +63,9 @@ def test_vertices_array_layout() -> None:
 
 def test_live_detector_keeps_to_its_rate(context) -> None:
     """With sensor-data QoS it looks at 10 of 30 frames a second, by stamp, and says so."""
-    node = VertexDetectorNode(context=context, parameter_overrides=[
-        Parameter('target', value='cube'), Parameter('qos', value='sensor_data'),
-        Parameter('live_max_rate_hz', value=10.0)])
-    helper = Node('vd_rate_helper', context=context)
-    clouds: list[PointCloud2] = []
-    helper.create_subscription(PointCloud2, '/absscale/vertices', clouds.append, 100)
-    pub = helper.create_publisher(Image, '/absscale/frames', 100)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    executor.add_node(helper)
+    node, helper, pub, clouds, executor = _detector_and_camera(
+        context, 'vd_rate_helper', [Parameter('qos', value='sensor_data'),
+                                    Parameter('live_max_rate_hz', value=10.0)], 100)
     rng = np.random.default_rng(1)
     img, _, _ = st.render_cube(rng, *st.cube_pose(35, 25, 5.0))
     assert spin_until(executor, lambda: pub.get_subscription_count() > 0, 5.0)
