@@ -152,7 +152,9 @@ def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
         if children is not None:  # discovery across processes takes longer than in one
             replay_params['startup_timeout_s'] = max(30.0, replay_params.get(
                 'startup_timeout_s', 5.0))
-            replay_params['settle_s'] = 2.0
+            # Matching across processes can lag discovery by seconds on a busy machine: a
+            # frame sent before a node's input matched is lost (seen as one step timeout).
+            replay_params['settle_s'] = 5.0
         if options.live:
             replay_params.update(mode='rate', qos='sensor_data')
         replay = BagReplayNode(context=context, parameter_overrides=_overrides(replay_params))
