@@ -43,7 +43,12 @@ class SheetConfig:
     :param roundness_min: lower roundness bound, eq. 1 (paper: 0.1).
     :param roundness_max: upper roundness bound, eq. 1 (paper: 0.85).
     :param min_solidity: smallest region area over its convex hull area (convexity test).
-    :param aspect_tol: largest relative deviation of the recovered long/short side ratio.
+    :param aspect_tol: largest relative deviation of the recovered long/short side ratio
+        (without intrinsics: the deviation allowed).
+    :param aspect_floor: with intrinsics, the smallest deviation allowed (lens distortion, a
+        sheet cut a little off size); more where the corners fix the ratio less well.
+    :param aspect_corner_px: with intrinsics, the deviation allowed is the one corner shifts of
+        this many px cause (``sheet_checks.aspect_tolerance``; 0 allows ``aspect_tol``).
     :param min_support: smallest fraction of each side backed by an image edge.
     :param min_contrast: smallest BGR colour step across every side (0-255).
     :param work_max_side_px: the candidate search runs on an image at most this big.
@@ -88,6 +93,8 @@ class SheetConfig:
     roundness_max: float = 0.85
     min_solidity: float = 0.85
     aspect_tol: float = 0.08
+    aspect_floor: float = 0.02
+    aspect_corner_px: float = 1.5
     min_support: float = 0.5
     min_contrast: float = 10.0
     work_max_side_px: int = 480
@@ -117,6 +124,8 @@ class SheetConfig:
             raise ValueError(f'work_max_side_px too small: {self.work_max_side_px}')
         if not 0.0 < self.focal_range[0] <= self.focal_range[1]:
             raise ValueError(f'focal_range must be 0 < low <= high, got {self.focal_range}')
+        if not 0.0 < self.aspect_floor <= self.aspect_tol:
+            raise ValueError(f'need 0 < aspect_floor <= aspect_tol, got {self.aspect_floor}')
         if self.max_shade < 1.0:
             raise ValueError(f'max_shade must be >= 1, got {self.max_shade}')
         self.models()  # raises ValueError on an unknown sheet

@@ -16,6 +16,7 @@ if TYPE_CHECKING:
 
 Array = npt.NDArray[np.float64]
 FOCAL_STEPS = 5  # focal lengths tried over ``focal_range`` without intrinsics
+ASPECT_STEP_PX = 0.25  # corner shift of the aspect's finite differences
 SHADE_FLOOR = 32.0  # brightness floor of the shade-free colour test: dark colours are noisy
 
 
@@ -50,7 +51,7 @@ def passes(image_bgr: npt.NDArray[np.uint8], refined: sides.Refined, cfg: 'Sheet
         return False  # four edges of different things (a table top, its legs, the floor)
     if not one_colour(outside, cfg.max_outside_spread, 1.0, cfg.max_shade):
         return False  # a sheet lies on one surface: wall between table legs, floor below
-    if not aspect_ok(corners, image_bgr.shape, cfg, K, cfg.aspect_tol):
+    if not aspect_ok(corners, image_bgr.shape, cfg, K, aspect_tolerance(corners, cfg, K)):
         return False
     return not tile(image_bgr, corners, cfg, seen_ends)
 
@@ -67,6 +68,30 @@ def tile(image_bgr: npt.NDArray[np.uint8], corners: Array, cfg: 'SheetConfig',
     ls = np.array([lines.line_through(a, b, corners.mean(axis=0)) for a, b in ends])
     ridges = sides.ridge_ratio(image_bgr, ls, ends, max(8.0, 0.08 * side_px), reaches=(1.0, 2.0))
     return int((ridges > cfg.ridge_ratio).sum()) > cfg.max_ridges
+
+
+def aspect_tolerance(corners: Array, cfg: 'SheetConfig', K: Array | None) -> float:
+    """
+    Return the aspect test's tolerance for refined ``corners`` (4, 2) px.
+
+    With intrinsics the side ratio is exact up to corner noise, whose effect ranges from a
+    fraction of a percent (a big sheet seen from above) to over ten (a small one seen edge-on):
+    the tolerance is the ratio change that corner shifts of ``cfg.aspect_corner_px`` (RMS over
+    the eight coordinates' independent shifts) cause, within ``cfg.aspect_floor`` (lens
+    distortion, paper cut) and ``cfg.aspect_tol``. A fixed 8 % passed a 4:3 board (3 % off
+    letter) seen square-on. Without intrinsics: ``cfg.aspect_tol``.
+    """
+    if K is None or cfg.aspect_corner_px <= 0.0:
+        return cfg.aspect_tol
+    a0 = lines.rectangle_aspect(corners, K, 0.0, K[:2, 2])
+    flat = corners.reshape(-1)
+    grads = np.empty(8)
+    for i in range(8):
+        moved = flat.copy()
+        moved[i] += ASPECT_STEP_PX
+        grads[i] = lines.rectangle_aspect(moved.reshape(4, 2), K, 0.0, K[:2, 2]) - a0
+    spread = cfg.aspect_corner_px * float(np.linalg.norm(grads)) / (ASPECT_STEP_PX * a0)
+    return float(np.clip(spread, cfg.aspect_floor, cfg.aspect_tol))
 
 
 def aspect_ok(corners: Array, shape: tuple[int, ...], cfg: 'SheetConfig', K: Array | None,
