@@ -20,11 +20,12 @@ from types import MappingProxyType
 from typing import Any
 
 from absscale_ros.core import errors
+from absscale_ros.core.keyframes import TrackedStep
 from absscale_ros.core.types import CameraModel
 from builtin_interfaces.msg import Time
 import cv2
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import PoseStamped
+from geometry_msgs.msg import PoseStamped, TransformStamped
 from nav_msgs.msg import Path
 import numpy as np
 import numpy.typing as npt
@@ -862,3 +863,50 @@ def cloud_msg_to_xyz_rgb_normals(msg: Any) -> tuple[
 def cloud_stamp_and_size(msg: Any) -> tuple[int, int]:
     """(header stamp in ns, number of points) of a PointCloud2, without decoding it."""
     return stamp_to_ns(msg.header.stamp), int(msg.width) * int(msg.height)
+
+
+def _keyframe_frame(stamp_ns: int) -> str:
+    return f'keyframe_{stamp_ns}'
+
+
+def tracked_step_to_msg(step: TrackedStep | None, stamp_ns: int) -> TransformStamped:
+    """
+    A keyframe's tracked motion as the pose of its camera (``child_frame_id``
+    ``keyframe_<stamp_ns>``) in the previous keyframe's camera frame (``header.frame_id``
+    ``keyframe_<ref_stamp_ns>``); translation in units of the previous keyframe's median scene
+    depth (scale-free). An unknown step (first keyframe, after a tracking loss) has an empty
+    ``header.frame_id``, so every keyframe still gets a message.
+    """
+    from scipy.spatial.transform import Rotation
+    msg = TransformStamped()
+    _header(msg, stamp_ns, '' if step is None else _keyframe_frame(step.ref_stamp_ns))
+    msg.child_frame_id = _keyframe_frame(stamp_ns)
+    if step is None:
+        msg.transform.rotation.w = 1.0
+        return msg
+    t, q = msg.transform.translation, msg.transform.rotation
+    t.x, t.y, t.z = (float(v) for v in step.centre)
+    q.x, q.y, q.z, q.w = (float(v) for v in Rotation.from_matrix(step.rotation.T).as_quat())
+    return msg
+
+
+def tracked_step_from_msg(msg: Any) -> TrackedStep | None:
+    """
+    The ``TrackedStep`` of ``tracked_step_to_msg`` (None: unknown step).
+
+    :raises errors.MessageError: on a frame name that is not ``keyframe_<ns>``, or a
+        non-finite translation or rotation.
+    """
+    from scipy.spatial.transform import Rotation
+    parent = msg.header.frame_id
+    if not parent:
+        return None
+    prefix, _, ns = parent.rpartition('_')
+    t, q = msg.transform.translation, msg.transform.rotation
+    centre = np.array([t.x, t.y, t.z], float)
+    quat = np.array([q.x, q.y, q.z, q.w], float)
+    if prefix != 'keyframe' or not ns.isdigit() or not np.all(np.isfinite(centre)) \
+            or not np.isfinite(quat).all() or not np.linalg.norm(quat) > 0.5:
+        raise errors.MessageError(f'bad tracked step: frame {parent!r}, translation {centre}, '
+                                  f'rotation {quat}')
+    return TrackedStep(int(ns), Rotation.from_quat(quat).as_matrix().T, centre)

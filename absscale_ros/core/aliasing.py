@@ -5,7 +5,8 @@ Pavers, tiles and bricks repeat every few metres. Under fast, blurred motion few
 survive, and one texture matched a period off is a rigid, self-consistent wrong motion: PnP
 finds it with hundreds of inliers, all on the textured plane. Two symptoms give it away: the
 camera would have jumped (its velocity reversed in a fraction of a second), and the structure
-off that plane (objects, facades, decals seen at an angle) does not agree with the pose.
+off that plane (objects, facades, decals seen at an angle) does not agree with the pose,
+and the step points elsewhere than the one the keyframe selector tracked frame to frame.
 """
 import numpy as np
 import numpy.typing as npt
@@ -44,6 +45,20 @@ def velocity_reason(centres: FloatArray, stamps_ns: npt.NDArray[np.int64], max_c
         return None
     return (f' (its pose changes the velocity by {change:.2f} times the speed in '
             f'{1e-9 * float(span.sum()):.2f} s: repeated texture matched one period off?)')
+
+
+def step_angle_deg(T_world_ref: FloatArray, T_world_new: FloatArray,
+                   tracked_centre: FloatArray) -> float:
+    """
+    Angle between the step from ``T_world_ref`` to ``T_world_new`` (camera poses) and the
+    same step as tracked frame to frame (``tracked_centre``: the new camera's centre in the
+    reference camera's frame, any unit); 0 when either step has no length.
+    """
+    step = T_world_ref[:3, :3].T @ (T_world_new[:3, 3] - T_world_ref[:3, 3])
+    norms = float(np.linalg.norm(step)) * float(np.linalg.norm(tracked_centre))
+    if not norms > 0.0:
+        return 0.0
+    return float(np.degrees(np.arccos(np.clip(step @ tracked_centre / norms, -1.0, 1.0))))
 
 
 def dominant_plane(points: FloatArray, tol: float, rng: np.random.Generator,

@@ -38,6 +38,8 @@ class Motion:
     :param depths: (N,) depth in view 0 of each input pair in units of the baseline, NaN
         where it is not one of the points ``baseline_ratio`` is the median over (None when
         degenerate).
+    :param rotation: (3, 3) R_1_0 (None when degenerate).
+    :param direction: (3,) unit translation, view 1 from view 0 (None when degenerate).
     """
 
     inliers: int
@@ -47,6 +49,8 @@ class Motion:
     degenerate: bool
     baseline_ratio: float
     depths: FloatArray | None = None
+    rotation: FloatArray | None = None
+    direction: FloatArray | None = None
 
 
 def gric(residuals_sq: FloatArray, sigma_sq: float, manifold_dim: int, params: int) -> float:
@@ -197,7 +201,8 @@ def analyse(xy0: FloatArray, xy1: FloatArray, sigma_norm: float, min_inliers: in
     depths = np.full(len(xy0), nan)
     depths[inl] = unit_baseline_depths(R, t.ravel(), a, b)
     ratio = float(1.0 / np.nanmedian(depths)) if np.any(np.isfinite(depths)) else nan
-    return Motion(n_inl, g_e, g_rot, parallax, not np.isfinite(ratio), ratio, depths)
+    return Motion(n_inl, g_e, g_rot, parallax, not np.isfinite(ratio), ratio, depths, R,
+                  t.ravel())
 
 
 def sharpness(grey: npt.NDArray[np.uint8]) -> float:

@@ -119,6 +119,34 @@ class KeyframeConfig:
 
 
 @dataclass(frozen=True)
+class TrackedStep:
+    """
+    The camera's motion since the previous keyframe, measured by tracking corners frame to
+    frame. Those steps are a few pixels, so a repeated texture cannot fool them the way it can
+    fool matching two keyframes a texture period apart; the SfM checks its poses against it.
+
+    :param ref_stamp_ns: stamp of the previous keyframe.
+    :param rotation: (3, 3) R_this_ref.
+    :param centre: (3,) this camera's centre in the previous keyframe's camera frame, in units
+        of the median depth of the previous keyframe's corners (scale-free).
+    """
+
+    ref_stamp_ns: int
+    rotation: FloatArray
+    centre: FloatArray
+
+
+def chain(first: TrackedStep, then: TrackedStep) -> TrackedStep:
+    """
+    The step over two tracked steps (``then`` starts where ``first`` ends), for a keyframe
+    whose previous one never made it into the map. Each centre is in units of its own
+    reference's depth: taken as equal, which matters to the length, hardly to the direction.
+    """
+    return TrackedStep(first.ref_stamp_ns, then.rotation @ first.rotation,
+                       first.centre + first.rotation.T @ then.centre)
+
+
+@dataclass(frozen=True)
 class Decision:
     """
     What the selector made of one frame.
@@ -133,6 +161,8 @@ class Decision:
         degenerate).
     :param after_loss: for a keyframe: tracking to the previous keyframe was lost in between,
         so the pair shares no tracked corners.
+    :param step: for a keyframe: its tracked motion from the previous keyframe (None for the
+        first, after a loss, or when the two-view test did not measure one).
     """
 
     stamp_ns: int
@@ -143,6 +173,7 @@ class Decision:
     baseline_ratio: float
     target_area: float
     after_loss: bool = False
+    step: TrackedStep | None = None
 
 
 class KeyframeSelector:
@@ -166,6 +197,7 @@ class KeyframeSelector:
         self._since_turn = 1 << 30  # frames since the camera last turned on the spot
         self._have_keyframe = False
         self._lost_since_keyframe = False
+        self._measured: TrackedStep | None = None  # this frame's motion from the reference
         self.lost_count = 0
 
     def _grey(self, image_bgr: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint8]:
@@ -251,7 +283,7 @@ class KeyframeSelector:
             to the map, so such a frame is passed over ('undetected') for the next detected one
             unless tracking is running out or the baseline has reached its maximum.
         """
-        self._stamp_ns = stamp_ns
+        self._stamp_ns, self._measured = stamp_ns, None
         grey = self._grey(image_bgr)
         cam = self._track_camera(camera, grey)
         sharp = self._sharpness_ratio(grey)
@@ -266,11 +298,12 @@ class KeyframeSelector:
                     and not ratio >= self.cfg.max_baseline_ratio:
                 keyframe, reason = False, 'undetected'
             after_loss = keyframe and self._lost_since_keyframe
+            step = self._measured if keyframe and not after_loss else None
             if keyframe:
                 self._seed(grey)
                 self._have_keyframe, self._lost_since_keyframe = True, False
             return Decision(stamp_ns, keyframe, reason, sharp, tracked, ratio, target_area,
-                            after_loss)
+                            after_loss, step)
 
         turning = self._turning(cam) if n >= self.cfg.lost_tracks else ''
         self._since_turn = 0 if turning else self._since_turn + 1
@@ -297,7 +330,11 @@ class KeyframeSelector:
             # Few corners left and still no baseline: the overlap with the last keyframe is
             # going; start again from here rather than wait on a handful of far corners.
             return self._lost(grey, decide, False) if low_tracks else decide(False, 'degenerate')
-        return self._by_baseline(self._pooled_ratio(geo), low_tracks, target_area, decide)
+        ratio = self._pooled_ratio(geo)
+        if np.isfinite(ratio) and geo.rotation is not None and geo.direction is not None:
+            self._measured = TrackedStep(self._ref_stamp_ns, geo.rotation,
+                                         -geo.rotation.T @ geo.direction * ratio)
+        return self._by_baseline(ratio, low_tracks, target_area, decide)
 
     def _pooled_ratio(self, geo: keyframe_geometry.Motion) -> float:
         """

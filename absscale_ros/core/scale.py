@@ -32,6 +32,10 @@ class ScaleConfig:
     max_shape_residual: float = 0.02  # RMS relative length misfit of the best assignment
     ambiguity_ratio: float = 3.0  # second-best assignment must misfit this many times more
     outlier_sigma: float = 3.5  # reject a vertex whose pairs deviate by this many MADs
+    # Vertices of one object closer than this share of its median vertex distance are one
+    # corner reconstructed twice (seen again after the camera walked round it): the one seen
+    # under the widest angle stays.
+    duplicate_share: float = 0.05
     max_relative_sigma: float = 0.01  # claim a scale only when sigma / factor is below this
     confidence: float = 0.95  # of the reported interval
     # The vertex residuals only see noise at the target; the reconstruction's own scale drift
@@ -46,8 +50,10 @@ class ScaleConfig:
     def __post_init__(self) -> None:
         if self.min_vertices < 2 or self.min_observations < 1:
             raise ValueError('min_vertices must be >= 2 and min_observations >= 1')
-        if min(self.drift_sigma_rel, self.max_path_jump, self.path_jump_s) < 0.0:
-            raise ValueError('drift_sigma_rel, max_path_jump and path_jump_s must be >= 0')
+        if min(self.drift_sigma_rel, self.max_path_jump, self.path_jump_s,
+               self.duplicate_share) < 0.0:
+            raise ValueError('drift_sigma_rel, max_path_jump, path_jump_s and duplicate_share '
+                             'must be >= 0')
         if not 0.0 < self.confidence < 1.0 or self.max_relative_sigma <= 0.0:
             raise ValueError('confidence must be in (0, 1) and max_relative_sigma > 0')
 
@@ -178,6 +184,23 @@ def usable(n_obs: npt.NDArray[np.int64], angles_deg: FloatArray,
         (np.asarray(angles_deg) >= cfg.min_angle_deg)
 
 
+def without_duplicates(points: FloatArray, angles_deg: FloatArray,
+                       share: float) -> npt.NDArray[np.int64]:
+    """
+    Indices of the vertices to keep: of those closer together than ``share`` of the median
+    distance between all of them, the one seen under the widest angle.
+    """
+    if len(points) < 2 or share <= 0.0:
+        return np.arange(len(points))
+    dist = np.linalg.norm(points[:, None] - points[None, :], axis=2)
+    tol = share * float(np.median(dist[np.triu_indices(len(points), 1)]))
+    kept: list[int] = []
+    for i in np.argsort(-np.asarray(angles_deg), kind='stable'):
+        if all(dist[i, j] >= tol for j in kept):
+            kept.append(int(i))
+    return np.sort(np.array(kept, np.int64))
+
+
 def drop_outlier_vertex(points: FloatArray, model_m: FloatArray,
                         cfg: ScaleConfig) -> tuple[npt.NDArray[np.int64], str | None]:
     """
@@ -279,6 +302,11 @@ def estimate(objects: list[ObjectVertices], cfg: ScaleConfig,
     for obj in objects:
         keep = usable(obj.n_obs, obj.angles_deg, cfg)
         pts = np.asarray(obj.points, float)[keep]
+        single = without_duplicates(pts, np.asarray(obj.angles_deg)[keep], cfg.duplicate_share)
+        if len(single) < len(pts):
+            rejected.append(f'object {obj.object_id}: {len(pts) - len(single)} vertices '
+                            'reconstructed twice, merged')
+            pts = pts[single]
         if len(pts) < cfg.min_vertices:
             rejected.append(f'object {obj.object_id}: {len(pts)} well-observed vertices < '
                             f'{cfg.min_vertices}')

@@ -16,7 +16,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from absscale_ros.core import aliasing, errors, landmark_quality, local_map, sfm_graph, sfm_map
+from absscale_ros.core import aliasing, errors, keyframes, landmark_quality, local_map, sfm_graph
+from absscale_ros.core import sfm_map
 from absscale_ros.core import sfm_vertices, twoview
 from absscale_ros.core import features as feat
 from absscale_ros.core import vertex_matching as vm
@@ -57,12 +58,19 @@ class SfmConfig:
     min_off_plane: int = 20
     plane_tol: float = 0.02  # plane thickness / median spread of the landmarks
     plane_check_px: float = 8.0  # a correspondence this close to the pose supports it, px
+    # A registration whose step points more than this away from the step the keyframe
+    # selector tracked (corners followed frame to frame: a few pixels each, which a repeated
+    # texture cannot fool) is refused. The tracked direction itself was off by up to 94
+    # degrees in simulator bags (an essential matrix on a short baseline); an aliased pose
+    # pointed backwards (178). 180: off.
+    max_tracked_angle_deg: float = 120.0
 
     def __post_init__(self) -> None:
         if self.match_window < 1 or self.relocalise_window < self.match_window or \
                 self.min_pnp_inliers < 6 or self.pnp_px <= 0.0 or self.max_pending < 2 or \
                 min(self.max_velocity_change, self.motion_check_s, self.min_off_plane_support,
-                    self.plane_tol, self.plane_check_px) < 0.0 or self.min_off_plane < 1:
+                    self.plane_tol, self.plane_check_px) < 0.0 or self.min_off_plane < 1 \
+                or not 0.0 < self.max_tracked_angle_deg <= 180.0:
             raise ValueError(f'bad sfm config {self}')
 
 
@@ -103,6 +111,7 @@ class IncrementalSfm:
         self.segments: list[Segment] = [self._new_segment()]
         self._next_kf = 0
         self._failures = 0
+        self._steps: dict[int, keyframes.TrackedStep] = {}  # of the newest keyframes, by stamp
 
     def _new_segment(self) -> Segment:
         return Segment(sfm_map.SfmMap(), sfm_graph.SegmentGraph(self.K, self.cfg.graph_cfg))
@@ -112,13 +121,20 @@ class IncrementalSfm:
         return self.segments[-1]
 
     def add_keyframe(self, stamp_ns: int, image_bgr: npt.NDArray[np.uint8],
-                     vertices: vm.Vertices | None = None) -> UpdateResult:
+                     vertices: vm.Vertices | None = None,
+                     step: keyframes.TrackedStep | None = None) -> UpdateResult:
         """
         Process one keyframe; see ``UpdateResult``.
 
         :param image_bgr: (H, W, 3) uint8 image.
         :param vertices: its detected target vertices, ``points_px`` distorted (as detected).
+        :param step: its motion from the previous keyframe as the keyframe selector tracked it
+            (None: unknown); a pose that disagrees with it is refused.
         """
+        if step is not None:
+            self._steps[stamp_ns] = step
+            while len(self._steps) > self.cfg.max_failures + 2:  # enough to bridge drops
+                del self._steps[min(self._steps)]
         f = feat.detect(image_bgr, self.camera, self.cfg.feature_cfg)
         kf = sfm_map.MapKeyframe(self._next_kf, stamp_ns, np.eye(4), f,
                                  np.full(len(f.points_px), -1, np.int64))
@@ -262,6 +278,9 @@ class IncrementalSfm:
     def _fooled(self, m: sfm_map.SfmMap, kf: sfm_map.MapKeyframe,
                 disowned: str | None) -> str | None:
         """Why ``kf``'s new pose looks like a repeated texture's (None: it does not)."""
+        off = self._off_track(m, kf)
+        if off is not None:
+            return off
         prev = [m.keyframes[i] for i in sorted(m.keyframes)[-2:]] + [kf]
         if len(prev) < 3 or self.cfg.max_velocity_change <= 0.0:
             return disowned
@@ -269,6 +288,26 @@ class IncrementalSfm:
             np.array([k.T_world_cam[:3, 3] for k in prev]),
             np.array([k.stamp_ns for k in prev], np.int64), self.cfg.max_velocity_change,
             self.cfg.motion_check_s) or disowned
+
+    def _off_track(self, m: sfm_map.SfmMap, kf: sfm_map.MapKeyframe) -> str | None:
+        """Why ``kf``'s new pose goes elsewhere than the selector tracked (None: it does not,
+        or there is no tracked step from a keyframe of the map)."""
+        step = self._steps.get(kf.stamp_ns)
+        if step is None or self.cfg.max_tracked_angle_deg >= 180.0:
+            return None
+        recent = [m.keyframes[i] for i in sorted(m.keyframes)[-self.cfg.relocalise_window:]]
+        by_stamp = {k.stamp_ns: k for k in recent}
+        while step.ref_stamp_ns not in by_stamp:  # its reference was dropped: bridge it
+            earlier = self._steps.get(step.ref_stamp_ns)
+            if earlier is None:
+                return None
+            step = keyframes.chain(earlier, step)
+        angle = aliasing.step_angle_deg(by_stamp[step.ref_stamp_ns].T_world_cam, kf.T_world_cam,
+                                        step.centre)
+        if angle <= self.cfg.max_tracked_angle_deg:
+            return None
+        return (f' (its step points {angle:.0f} degrees away from the tracked motion: '
+                'repeated texture matched one period off?)')
 
     def _restart(self, seg: Segment, kf: sfm_map.MapKeyframe) -> tuple[str, str]:
         """

@@ -3,10 +3,12 @@ keyframe_selector: only the frames worth reconstructing go on (``core/keyframes.
 
 Subscribes ``/absscale/frames`` (Image), ``/absscale/vertices`` (PointCloud2, one per frame,
 paired with its frame by stamp in a bounded buffer) and ``/absscale/camera_info``. Publishes,
-for each keyframe, the frame on ``/absscale/keyframes`` and its vertices on
-``/absscale/keyframe_vertices`` with the same stamp (an empty vertices cloud when
-``use_vertices`` is off: then frames alone decide). Every parameter of ``KeyframeConfig`` is a
-ROS parameter. Each input message is acknowledged (``common.StepAck``); ``/diagnostics`` once
+for each keyframe, the frame on ``/absscale/keyframes``, its vertices on
+``/absscale/keyframe_vertices`` (an empty cloud when ``use_vertices`` is off: then frames
+alone decide) and its tracked motion from the previous keyframe on
+``/absscale/keyframe_motion`` (TransformStamped, scale-free; see
+``conversions.tracked_step_to_msg``), all with the same stamp. Every parameter of
+``KeyframeConfig`` is a ROS parameter. Each input message is acknowledged (``common.StepAck``); ``/diagnostics`` once
 a second: frames, keyframes, blurred, degenerate, tracking lost, time per frame.
 """
 from collections import Counter
@@ -19,6 +21,7 @@ from absscale_ros.core import detect, errors, keyframe_geometry, keyframes, pair
 from absscale_ros.nodes import common
 import numpy as np
 from rclpy.node import Node
+from geometry_msgs.msg import TransformStamped
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 
@@ -41,6 +44,8 @@ class KeyframeSelectorNode(Node):
         self._kf_pub = self.create_publisher(Image, '/absscale/keyframes', common.RELIABLE)
         self._kv_pub = self.create_publisher(PointCloud2, '/absscale/keyframe_vertices',
                                              common.RELIABLE)
+        self._motion_pub = self.create_publisher(TransformStamped, '/absscale/keyframe_motion',
+                                                 common.RELIABLE)
         self._diag = common.DiagnosticsPublisher(self, 'keyframes')
         self._ack = common.StepAck(self)
         self.create_subscription(CameraInfo, '/absscale/camera_info', self._on_info,
@@ -98,12 +103,15 @@ class KeyframeSelectorNode(Node):
             self._times_ms.append(1e3 * (time.perf_counter() - t0))
             self._reasons[decision.reason] += 1
             if decision.keyframe:
+                self._motion_pub.publish(conversions.tracked_step_to_msg(decision.step,
+                                                                         decision.stamp_ns))
                 self._kv_pub.publish(vertices if vertices is not None else
                                      conversions.array_to_cloud_msg(
                                          np.zeros(0, detect.VERTEX_DTYPE), decision.stamp_ns,
                                          frame.header.frame_id))
                 self._kf_pub.publish(frame)
-                outputs = [self._kv_pub.topic_name, self._kf_pub.topic_name]
+                outputs = [self._motion_pub.topic_name, self._kv_pub.topic_name,
+                           self._kf_pub.topic_name]
                 self.keyframe_stamps_ns.append(decision.stamp_ns)
         except errors.AbsScaleError as err:
             self._reasons['dropped'] += 1

@@ -1,8 +1,10 @@
 """
 sfm: an unscaled incremental reconstruction from the keyframes (``core/sfm.py``).
 
-Subscribes ``/absscale/keyframes`` (Image) and ``/absscale/keyframe_vertices`` (PointCloud2),
-paired by stamp, and ``/absscale/camera_info``. After each keyframe publishes, for the segment
+Subscribes ``/absscale/keyframes`` (Image), ``/absscale/keyframe_vertices`` (PointCloud2) and,
+with ``use_tracked_steps``, ``/absscale/keyframe_motion`` (TransformStamped: the selector's
+tracked step, against which a registration is checked), paired by stamp, and
+``/absscale/camera_info``. After each keyframe publishes, for the segment
 worth scaling (``core/sfm_outputs.best_segment``): ``/absscale/sparse_cloud`` (x y z rgb, SfM
 units), ``/absscale/keyframe_path`` (nav_msgs/Path, T_world_cam per keyframe),
 ``/absscale/target_points`` (x y z object_id vertex_id n_obs angle_deg target_type) and
@@ -17,6 +19,7 @@ from typing import Any
 from absscale_ros import conversions
 from absscale_ros.core import errors, keyframes, pairing, sfm, sfm_outputs
 from absscale_ros.nodes import common
+from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Path
 import numpy as np
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
@@ -40,10 +43,12 @@ class SfmNode(Node):
                        for prefix, field in STAGES.items()})
         self._cfg = replace(cfg, **values)
         p = {x.name: x.value for x in self.declare_parameters('', [
-            ('pair_depth', 10), ('seed', 0), ('frame_id', 'map')])}
+            ('pair_depth', 10), ('seed', 0), ('frame_id', 'map'), ('use_tracked_steps', True)])}
         self._seed, self._frame = p['seed'], p['frame_id']
         self._pairer: pairing.StampPairer[Image, PointCloud2] = pairing.StampPairer(
             p['pair_depth'])
+        self._step_pairer: pairing.StampPairer[tuple[Image, PointCloud2], TransformStamped] = \
+            pairing.StampPairer(p['pair_depth'])
         self._camera: Any = None
         self.engine: sfm.IncrementalSfm | None = None
         self._last: sfm.UpdateResult | None = None
@@ -65,6 +70,10 @@ class SfmNode(Node):
             PointCloud2, '/absscale/keyframe_vertices', lambda m: self._settle(
                 self._pairer.add_second(conversions.stamp_to_ns(m.header.stamp), m)),
             common.RELIABLE, callback_group=group)
+        self._motion_sub = self.create_subscription(
+            TransformStamped, '/absscale/keyframe_motion', lambda m: self._settle_steps(
+                self._step_pairer.add_second(conversions.stamp_to_ns(m.header.stamp), m)),
+            common.RELIABLE, callback_group=group) if p['use_tracked_steps'] else None
 
     def _on_info(self, msg: CameraInfo) -> None:
         try:
@@ -73,20 +82,42 @@ class SfmNode(Node):
             self.get_logger().warning(f'bad camera_info: {err}', throttle_duration_sec=5.0)
 
     def _settle(self, result: pairing.Pairing[Image, PointCloud2]) -> None:
-        for _, image, vertices in result.pairs:
-            outputs = self._process(image, vertices)
-            self._ack.ack(image.header.stamp, self._kf_sub.topic_name, outputs)
-            self._ack.ack(vertices.header.stamp, self._kv_sub.topic_name, outputs)
+        for stamp_ns, image, vertices in result.pairs:
+            if self._motion_sub is not None:
+                self._settle_steps(self._step_pairer.add_first(stamp_ns, (image, vertices)))
+            else:
+                self._handle(image, vertices, None)
         for _, msg in result.dropped_first:
             self.statuses['unpaired'] = self.statuses.get('unpaired', 0) + 1
             self._ack.ack(msg.header.stamp, self._kf_sub.topic_name)
         for _, msg in result.dropped_second:
             self._ack.ack(msg.header.stamp, self._kv_sub.topic_name)
 
-    def _process(self, image_msg: Image, vertices_msg: PointCloud2) -> list[str]:
+    def _settle_steps(self, result: pairing.Pairing[tuple[Image, PointCloud2],
+                                                    TransformStamped]) -> None:
+        # A keyframe whose step never came is older than the pairs just made: first, unchecked.
+        for _, (image, vertices) in result.dropped_first:
+            self.statuses['no_tracked_step'] = self.statuses.get('no_tracked_step', 0) + 1
+            self._handle(image, vertices, None)
+        for _, (image, vertices), motion in result.pairs:
+            self._handle(image, vertices, motion)
+        for _, motion in result.dropped_second:
+            self._ack.ack(motion.header.stamp, self._motion_sub.topic_name)
+
+    def _handle(self, image: Image, vertices: PointCloud2,
+                motion: TransformStamped | None) -> None:
+        outputs = self._process(image, vertices, motion)
+        self._ack.ack(image.header.stamp, self._kf_sub.topic_name, outputs)
+        self._ack.ack(vertices.header.stamp, self._kv_sub.topic_name, outputs)
+        if motion is not None:
+            self._ack.ack(motion.header.stamp, self._motion_sub.topic_name, outputs)
+
+    def _process(self, image_msg: Image, vertices_msg: PointCloud2,
+                 motion_msg: TransformStamped | None) -> list[str]:
         try:
             image = conversions.image_msg_to_bgr(image_msg)
             rows = conversions.cloud_msg_to_array(vertices_msg)
+            step = conversions.tracked_step_from_msg(motion_msg) if motion_msg else None
         except errors.AbsScaleError as err:
             self.get_logger().warning(f'keyframe dropped: {err}', throttle_duration_sec=5.0)
             return []
@@ -99,7 +130,7 @@ class SfmNode(Node):
         stamp_ns = conversions.stamp_to_ns(image_msg.header.stamp)
         t0 = time.perf_counter()
         self._last = self.engine.add_keyframe(stamp_ns, image,
-                                              sfm_outputs.vertices_from_rows(rows))
+                                              sfm_outputs.vertices_from_rows(rows), step)
         sfm_outputs.compact(self.engine)  # finished segments to arrays: memory of long scans
         self._times_ms.append(1e3 * (time.perf_counter() - t0))
         self.statuses[self._last.status] = self.statuses.get(self._last.status, 0) + 1

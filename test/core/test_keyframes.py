@@ -82,6 +82,49 @@ def test_keyframes_wait_for_a_detected_frame(sequence) -> None:
         < CFG.max_baseline_ratio
 
 
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip(a @ b / np.linalg.norm(a) / np.linalg.norm(b),
+                                              -1.0, 1.0))))
+
+
+def test_keyframe_steps_point_where_the_camera_went(sequence) -> None:
+    # The SfM refuses a pose whose step disagrees with these by more than 120 degrees.
+    _, gt, frames, camera = sequence
+    truth = {f['stamp_ns']: np.array(f['T_world_cam']) for f in gt['frames']}
+    decisions = [d for d in _run(frames, camera) if d.keyframe]
+    assert decisions[0].step is None  # the first has nothing to step from
+    checked = 0
+    for prev, d in zip(decisions, decisions[1:]):
+        if d.after_loss:
+            assert d.step is None
+            continue
+        assert d.step is not None and d.step.ref_stamp_ns == prev.stamp_ns
+        rel = np.linalg.inv(truth[prev.stamp_ns]) @ truth[d.stamp_ns]  # camera d in prev's
+        assert _angle_deg(d.step.centre, rel[:3, 3]) < 10.0, d
+        rot_err = cv2.Rodrigues(d.step.rotation @ rel[:3, :3])[0]
+        assert np.degrees(np.linalg.norm(rot_err)) < 1.0
+        checked += 1
+    assert checked >= 3
+
+
+def test_two_steps_chain_into_one() -> None:
+    rng = np.random.default_rng(0)
+    T = [np.eye(4)]
+    for _ in range(2):
+        step = np.eye(4)
+        step[:3, :3] = cv2.Rodrigues(rng.normal(0.0, 0.1, 3))[0]
+        step[:3, 3] = rng.normal(0.0, 1.0, 3)
+        T.append(T[-1] @ step)
+
+    def tracked(a: int, b: int) -> keyframes.TrackedStep:
+        rel = np.linalg.inv(T[a]) @ T[b]
+        return keyframes.TrackedStep(a, rel[:3, :3].T, rel[:3, 3])
+    both = keyframes.chain(tracked(0, 1), tracked(1, 2))
+    want = tracked(0, 2)
+    assert both.ref_stamp_ns == 0
+    assert np.allclose(both.rotation, want.rotation) and np.allclose(both.centre, want.centre)
+
+
 def test_tracking_loss_is_reported_and_never_makes_a_keyframe(sequence) -> None:
     _, _, frames, camera = sequence
     selector = keyframes.KeyframeSelector(CFG)

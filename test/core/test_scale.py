@@ -119,17 +119,34 @@ def test_drift_term_widens_sigma_and_interval() -> None:
     assert wide.interval[1] - wide.factor >= 1.96 * 0.003 * wide.factor
 
 
-def test_a_vertex_reconstructed_twice_is_left_out_not_a_crash() -> None:
+def test_a_vertex_reconstructed_twice_is_merged_not_a_crash() -> None:
     rng = np.random.default_rng(9)
     obj = _reconstructed('sheet', LETTER, 0.5, 0.0002, rng, order=[0, 1, 2, 3])
     pts = np.vstack([obj.points, obj.points[1] + 0.01])  # a fifth "corner" next to one
     twice = scale.ObjectVertices('sheet', LETTER, pts, np.full(5, 5), np.full(5, 10.0))
     est = scale.estimate([twice], CFG)
     assert est.factor == pytest.approx(0.5, rel=0.005)
-    six = scale.ObjectVertices('sheet', LETTER, np.vstack([pts, pts[0] + 0.02]),
-                               np.full(6, 5), np.full(6, 10.0))
+    assert any('twice' in r for r in est.rejected)
+    # Two strays well clear of every corner are not duplicates: no subset of 4 fits.
+    strays = np.vstack([obj.points, obj.points[0] + 0.06, obj.points[2] - 0.06])
+    six = scale.ObjectVertices('sheet', LETTER, strays, np.full(6, 5), np.full(6, 10.0))
     with pytest.raises(NotObservableError, match='fits the target'):
         scale.estimate([six], CFG)
+
+
+def test_a_cube_walked_round_keeps_the_widest_seen_copy_of_each_corner() -> None:
+    # The 60 s outdoor bag: 15 cube landmarks for 8 corners, copies 1-2 % of an edge apart,
+    # each seen under a narrower angle than the corner's best landmark.
+    rng = np.random.default_rng(4)
+    cube = _reconstructed('cube', (0.8,), 0.7, 0.001, rng)
+    copies = rng.choice(8, 6, replace=False)
+    pts = np.vstack([cube.points, cube.points[copies] + rng.normal(0, 0.015, (6, 3)) / 0.7])
+    angles = np.concatenate([np.full(8, 30.0), np.full(6, 10.0)])
+    obj = scale.ObjectVertices('cube', (0.8,), pts, np.full(14, 8), angles)
+    est = scale.estimate([obj], CFG)
+    assert est.factor == pytest.approx(0.7, rel=0.003)
+    with pytest.raises(NotObservableError):
+        scale.estimate([obj], scale.ScaleConfig(duplicate_share=0.0))
 
 
 def test_too_few_keyframes_claim_nothing() -> None:

@@ -10,7 +10,8 @@ import cv2
 import numpy as np
 import pytest
 
-from absscale_ros.core import aliasing, align, errors, sfm, sfm_graph, sfm_vertices, twoview
+from absscale_ros.core import aliasing, align, errors, keyframes, sfm, sfm_graph, sfm_vertices
+from absscale_ros.core import twoview
 from absscale_ros.core import features as feat
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -227,3 +228,24 @@ def test_velocity_reversal_is_implausible(outdoor_orbit) -> None:
     assert aliasing.velocity_change(jumped, stamps) > 1.2
     assert 'repeated texture' in aliasing.velocity_reason(jumped, stamps, 1.2, 1.0)
     assert aliasing.velocity_reason(jumped, 10 * stamps, 1.2, 1.0) is None  # 2 s: may turn back
+
+
+def test_pose_against_the_tracked_step_is_refused(outdoor_orbit) -> None:
+    # The selector's tracked steps (here the true ones) let every true pose through; a step
+    # tracked the opposite way of the pose PnP finds refuses it (what an aliased pose is).
+    seq = outdoor_orbit
+
+    def tracked(a: int, b: int, sign: float = 1.0) -> keyframes.TrackedStep:
+        rel = np.linalg.inv(seq.T_world_cams[a]) @ seq.T_world_cams[b]
+        return keyframes.TrackedStep(a, rel[:3, :3].T, sign * rel[:3, 3])
+    # No relocalisation: the older keyframes' pavers would offer a pose a period away (it
+    # agrees with the reversed step; the right step refuses it the same way).
+    cfg = replace(sfm.SfmConfig(), relocalise_window=3)
+    engine = sfm.IncrementalSfm(seq.camera, cfg, np.random.default_rng(7))
+    results = [engine.add_keyframe(k, img, None, tracked(k - 1, k) if k else None)
+               for k, img in enumerate(seq.images_bgr[:9])]
+    assert results[-1].segments == 1 and results[-1].keyframes == 9
+    last = engine.add_keyframe(9, seq.images_bgr[9], None, tracked(8, 9, -1.0))
+    assert last.status == 'rejected' and 'tracked motion' in last.message
+    T = seq.T_world_cams
+    assert aliasing.step_angle_deg(T[8], T[9], (np.linalg.inv(T[8]) @ T[9])[:3, 3]) < 1e-6

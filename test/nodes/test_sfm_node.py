@@ -3,11 +3,12 @@ from pathlib import Path
 import sys
 
 from absscale_ros import conversions
-from absscale_ros.core import detect, replay, sfm, sfm_outputs
+from absscale_ros.core import detect, keyframes, replay, sfm, sfm_outputs
 from absscale_ros.core.types import CameraModel
 from absscale_ros.nodes import common
 from absscale_ros.nodes.sfm import SfmNode
 from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Path as PathMsg
 import numpy as np
 import pytest
@@ -24,7 +25,8 @@ OUTPUTS = ('/absscale/sparse_cloud', '/absscale/keyframe_path', '/absscale/targe
 
 
 class Probe(Node):
-    """Publishes keyframes, vertices and camera_info; records outputs, diagnostics and acks."""
+    """Publishes keyframes, vertices, tracked steps and camera_info; records outputs,
+    diagnostics and acks."""
 
     def __init__(self, **kwargs) -> None:
         super().__init__('probe', **kwargs)
@@ -42,10 +44,13 @@ class Probe(Node):
         self.kf = self.create_publisher(Image, '/absscale/keyframes', common.RELIABLE)
         self.kv = self.create_publisher(PointCloud2, '/absscale/keyframe_vertices',
                                         common.RELIABLE)
+        self.motion = self.create_publisher(TransformStamped, '/absscale/keyframe_motion',
+                                            common.RELIABLE)
 
     def send(self, camera: CameraModel, stamp_ns: int, image: np.ndarray,
-             vertices: np.ndarray) -> None:
+             vertices: np.ndarray, step: keyframes.TrackedStep | None) -> None:
         self.info.publish(conversions.camera_model_to_info_msg(camera, stamp_ns, 'cam'))
+        self.motion.publish(conversions.tracked_step_to_msg(step, stamp_ns))
         self.kv.publish(conversions.array_to_cloud_msg(vertices, stamp_ns, 'cam'))
         self.kf.publish(conversions.array_to_image_msg(image, 'bgr8', stamp_ns, 'cam'))
 
@@ -58,6 +63,14 @@ def _rows(vertices) -> np.ndarray:
     return rows
 
 
+def _tracked(seq: sfm_scenes.Sequence, k: int, stamps: list[int]) -> keyframes.TrackedStep | None:
+    """The true step to keyframe ``k`` from the one before, as the selector would track it."""
+    if k == 0:
+        return None
+    rel = np.linalg.inv(seq.T_world_cams[k - 1]) @ seq.T_world_cams[k]
+    return keyframes.TrackedStep(stamps[k - 1], rel[:3, :3].T, rel[:3, 3])
+
+
 def _run(context, seq: sfm_scenes.Sequence, with_vertices: bool) -> tuple[SfmNode, Probe]:
     node, probe = SfmNode(context=context), Probe(context=context)
     executor = SingleThreadedExecutor(context=context)
@@ -65,13 +78,14 @@ def _run(context, seq: sfm_scenes.Sequence, with_vertices: bool) -> tuple[SfmNod
     executor.add_node(probe)
     assert spin_until(executor, lambda: probe.kf.get_subscription_count() > 0)
     rng = np.random.default_rng(5)
+    stamps = [(k + 1) * 100_000_000 for k in range(len(seq.images_bgr))]
     for k, image in enumerate(seq.images_bgr):
-        stamp_ns = (k + 1) * 100_000_000
+        stamp_ns = stamps[k]
         vertices = _rows(sfm_scenes.detections(seq, k, rng)[0]) if with_vertices else \
             np.zeros(0, detect.VERTEX_DTYPE)
-        probe.send(seq.camera, stamp_ns, image, vertices)
-        # Step mode: the next keyframe only once this one is acknowledged on both inputs.
-        assert spin_until(executor, lambda: sum(a.stamp_ns == stamp_ns for a in probe.acks) == 2,
+        probe.send(seq.camera, stamp_ns, image, vertices, _tracked(seq, k, stamps))
+        # Step mode: the next keyframe only once this one is acknowledged on all three inputs.
+        assert spin_until(executor, lambda: sum(a.stamp_ns == stamp_ns for a in probe.acks) == 3,
                           timeout_s=30.0)
     spin_until(executor, lambda: len(probe.diags) >= len(seq.images_bgr), timeout_s=2.0)
     return node, probe
@@ -90,7 +104,8 @@ def test_map_topics_match_the_core_and_every_input_is_acknowledged(context) -> N
     engine = sfm.IncrementalSfm(seq.camera, sfm.SfmConfig(), np.random.default_rng(0))
     rng = np.random.default_rng(5)
     for k, image in enumerate(seq.images_bgr):
-        engine.add_keyframe(stamps[k], image, sfm_scenes.detections(seq, k, rng)[0])
+        engine.add_keyframe(stamps[k], image, sfm_scenes.detections(seq, k, rng)[0],
+                            _tracked(seq, k, stamps))
     poses, pose_stamps = conversions.path_msg_to_poses(probe.got[OUTPUTS[1]][-1])
     ids, T = engine.current.map.poses()
     assert list(pose_stamps) == [engine.current.map.keyframes[i].stamp_ns for i in ids]
