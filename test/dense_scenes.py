@@ -49,3 +49,15 @@ def forward_keyframes(seed: int = 3) -> tuple:
     side = np.cross(ahead, [0.0, 0.0, 1.0])
     step = 0.4 * (0.9 * ahead + np.sqrt(1 - 0.81) * side / np.linalg.norm(side))
     return _rendered([_look_at(start, target), _look_at(start + step, target)], seed)
+
+
+@functools.lru_cache(maxsize=1)
+def forward_walk(count: int = 5, seed: int = 3) -> tuple:
+    """``count`` keyframes walking towards the sheet (0.12 m steps, 20 degrees off the view)."""
+    target = _target(seed)
+    start = target + np.array([-0.4, -1.6, 0.9])
+    ahead = (target - start) / np.linalg.norm(target - start)
+    side = np.cross(ahead, [0.0, 0.0, 1.0])
+    step = STEP_M * (np.cos(np.radians(20)) * ahead + np.sin(np.radians(20)) * side
+                     / np.linalg.norm(side))
+    return _rendered([_look_at(start + k * step, target) for k in range(count)], seed)

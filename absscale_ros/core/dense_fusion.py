@@ -10,6 +10,9 @@ keyframe's camera frame; the cloud is the voxel average of those caches placed b
 poses. A new keyframe costs its depth maps and the check of its own points; an old keyframe's
 cache is rebuilt only when one of its depth maps is recomputed because its pair moved
 materially, rescaled when only the scale changed, and otherwise just moved with its pose.
+A keyframe also gets a plane-sweep depth map over its neighbours (``dense_sweep``, at a lower
+resolution), which covers what its pairs cannot: where the camera moved along its view. Its
+points are kept where no pair of the keyframe has depth, and it votes for the pairs' points.
 """
 from dataclasses import dataclass, field
 from typing import Any
@@ -17,11 +20,12 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from absscale_ros.core import dense_cloud, dense_stereo
+from absscale_ros.core import dense_cloud, dense_stereo, dense_sweep
 from absscale_ros.core.types import CameraModel
 
 FloatArray = npt.NDArray[np.float64]
 _NEW = -1.0  # a depth map was (re)computed, as opposed to a rescale factor
+SWEEP = 2  # key of the plane-sweep depth map among a keyframe's depth maps (pairs: +-1, 0)
 
 
 @dataclass(frozen=True)
@@ -48,6 +52,8 @@ class _Keyframe:
     pose: FloatArray | None = None  # T_world_cam, metres
     depths: dict[int, dense_stereo.DepthMap] = field(default_factory=dict)  # by side, +1 / -1
     cloud: Any = None  # cached open3d cloud in the camera frame (None: to be rebuilt)
+    view: Any = None  # (bgr, grey, K) undistorted at the sweep's scale, made when first swept
+    swept_with: dict[int, FloatArray] = field(default_factory=dict)  # neighbour -> T_nb_kf
 
 
 def _angle_deg(a: FloatArray, b: FloatArray) -> float:
@@ -62,10 +68,13 @@ def _rotation_deg(R: FloatArray) -> float:
 class DenseFusion:
     """Keyframes in, a metric dense cloud out; call ``update`` whenever poses arrive."""
 
-    def __init__(self, stereo: dense_stereo.StereoConfig, fusion: FusionConfig) -> None:
+    def __init__(self, stereo: dense_stereo.StereoConfig, fusion: FusionConfig,
+                 sweep: dense_sweep.SweepConfig | None = None) -> None:
         self.stereo, self.cfg = stereo, fusion
+        self.sweep = sweep or dense_sweep.SweepConfig()
         self._frames: dict[int, _Keyframe] = {}
         self.depth_computed = 0  # stereo pairs run so far (recomputations included)
+        self.sweeps_computed = 0  # plane sweeps run so far
         self.backlog = False  # depth maps left for later by the per-update budget
         self._poses: dict[int, FloatArray] = {}
 
@@ -90,6 +99,7 @@ class DenseFusion:
         # Newest first, at most max_new_maps stereo pairs: a backlog (all keyframes when the
         # scale is first claimed) is spread over the following updates.
         self._budget, self.backlog, self._poses = self.cfg.max_new_maps, False, poses
+        self._sweep_budget = 1
         outcome = [1.0] * len(stamps)
         for i in reversed(range(len(stamps))):
             outcome[i] = self._refresh_depth(stamps, i)
@@ -117,23 +127,19 @@ class DenseFusion:
         """
         results = [r for side in ((1, -1) if self.cfg.both_sides else (0,))
                    if (r := self._refresh_side(stamps, i, side)) is not None]
+        if (r := self._refresh_sweep(stamps, i)) is not None:
+            results.append(r)
         return _NEW if _NEW in results else float(np.mean(results)) if results else 1.0
 
     def _refresh_side(self, stamps: list[int], i: int, side: int) -> float | None:
         kf = self._frames[stamps[i]]
         old = kf.depths.get(side)
-        if old is not None and old.pair_stamp in self._frames:
-            partner = self._frames[old.pair_stamp]
-            if partner.pose is not None:
-                T = dense_stereo.relative_pose(kf.pose, partner.pose)
-                if _rotation_deg(T[:3, :3] @ old.relative[:3, :3].T) < self.cfg.recompute_deg \
-                        and _angle_deg(T[:3, 3], old.relative[:3, 3]) < self.cfg.recompute_deg:
-                    ratio = np.linalg.norm(T[:3, 3]) / np.linalg.norm(old.relative[:3, 3])
-                    if abs(ratio - 1.0) < 1e-9:
-                        return 1.0
-                    old.depth *= np.float32(ratio)  # a new scale only: depth goes with baseline
-                    old.relative = T
-                    return float(ratio)
+        if old is not None:
+            ratio = self._rescale(kf, {old.pair_stamp: old.relative}, old)
+            if ratio is not None:
+                old.relative = dense_stereo.relative_pose(kf.pose,
+                                                          self._frames[old.pair_stamp].pose)
+                return ratio
         depth_guess = self._depth_guess(stamps, i)
         n = self.stereo.candidates
         scored = []
@@ -158,6 +164,86 @@ class DenseFusion:
         self.depth_computed += 1
         return _NEW
 
+    def _rescale(self, kf: _Keyframe, used: dict[int, FloatArray],
+                 depth: dense_stereo.DepthMap) -> float | None:
+        """
+        If no view ``depth`` was computed with (stamp -> T_view_kf then) moved materially,
+        rescale it by the change of scale and return the factor; None if it must be recomputed.
+        """
+        ratios = []
+        for stamp, before in used.items():
+            other = self._frames.get(stamp)
+            if other is None or other.pose is None:
+                return None
+            T = dense_stereo.relative_pose(kf.pose, other.pose)
+            if _rotation_deg(T[:3, :3] @ before[:3, :3].T) >= self.cfg.recompute_deg \
+                    or _angle_deg(T[:3, 3], before[:3, 3]) >= self.cfg.recompute_deg:
+                return None
+            ratios.append(np.linalg.norm(T[:3, 3]) / np.linalg.norm(before[:3, 3]))
+        ratio = float(np.mean(ratios))
+        if abs(ratio - 1.0) < 1e-9:
+            return 1.0
+        depth.depth *= np.float32(ratio)  # a new scale only: depth goes with the baselines
+        return ratio
+
+    def _refresh_sweep(self, stamps: list[int], i: int) -> float | None:
+        """Keyframe ``i``'s plane-sweep depth map, once ``lag`` later keyframes exist."""
+        cfg, kf = self.sweep, self._frames[stamps[i]]
+        if not cfg.enabled or len(stamps) - 1 - i < cfg.lag:
+            return None
+        old = kf.depths.get(SWEEP)
+        if old is not None and (ratio := self._rescale(kf, kf.swept_with, old)) is not None:
+            kf.swept_with = {s: dense_stereo.relative_pose(kf.pose, self._frames[s].pose)
+                             for s in kf.swept_with}
+            return ratio
+        guess = self._depth_guess(stamps, i)
+        scored = []
+        for j in range(max(0, i - cfg.span), min(len(stamps), i + cfg.span + 1)):
+            T = dense_stereo.relative_pose(kf.pose, self._frames[stamps[j]].pose)
+            baseline = float(np.linalg.norm(T[:3, 3]))
+            if j != i and baseline >= cfg.min_baseline_ratio * guess and \
+                    _rotation_deg(T[:3, :3]) <= cfg.max_angle_deg:
+                scored.append((abs(np.log(baseline / guess / self.stereo.target_baseline_ratio)),
+                               stamps[j], T))
+        if not scored:
+            kf.swept_with = {}
+            return _NEW if kf.depths.pop(SWEEP, None) is not None else None
+        if self._sweep_budget <= 0:
+            self.backlog = True
+            return None
+        self._sweep_budget -= 1
+        chosen = sorted(scored, key=lambda x: x[0])[:cfg.views]
+        kf.depths[SWEEP] = self._swept(stamps, i, [(s, T) for _, s, T in chosen], guess)
+        kf.swept_with = {s: T for _, s, T in chosen}
+        self.sweeps_computed += 1
+        return _NEW
+
+    def _swept(self, stamps: list[int], i: int, views: list[tuple[int, FloatArray]],
+               guess: float) -> dense_stereo.DepthMap:
+        """The plane sweep of keyframe ``i`` over ``views`` (stamp, T_view_kf)."""
+        frames = [self._frames[stamps[i]]] + [self._frames[s] for s, _ in views]
+        for f in frames:
+            if f.view is None:
+                f.view = dense_sweep.pinhole_view(f.image, f.camera, self.sweep)
+        colour, grey, K = frames[0].view
+        near, far = self._depth_range(stamps, i, guess)
+        depth = dense_sweep.sweep(grey, [(f.view[1], T) for f, (_, T) in zip(frames[1:], views)],
+                                  K, near, far, self.sweep)
+        centres = [-T[:3, :3].T @ T[:3, 3] for _, T in views]
+        depth[~dense_sweep.precise(depth, K, centres, self.stereo.max_depth_baselines)] = 0.0
+        return dense_stereo.DepthMap(depth, colour, K, np.eye(3), -1, np.eye(4))
+
+    def _depth_range(self, stamps: list[int], i: int, guess: float) -> tuple[float, float]:
+        """Depths to sweep: what the depth maps of nearby keyframes hold, widened."""
+        span = self.sweep.span
+        depths = [d.depth[d.depth > 0][::7] for s in stamps[max(0, i - span):i + span + 1]
+                  for d in self._frames[s].depths.values()]
+        values = np.concatenate(depths) if depths else np.zeros(0)
+        if values.size < 100:
+            return guess / 4.0, guess * 4.0
+        near, far = np.percentile(values, [1, 99])
+        return float(near) / 1.5, float(far) * 1.5
+
     def _depth_guess(self, stamps: list[int], i: int) -> float:
         """Median depth of the nearest keyframe that has a depth map (for the pair choice)."""
         for j in sorted(range(len(stamps)), key=lambda j: abs(j - i)):
@@ -177,24 +263,33 @@ class DenseFusion:
         kf = self._frames[stamps[i]]
         k = self.cfg.neighbours
         near = sorted(range(max(0, i - k), min(len(stamps), i + k + 1)), key=lambda j: abs(j - i))
-        maps = [(m, self._frames[stamps[j]].pose, j) for j in near
-                for m in self._frames[stamps[j]].depths.values()]
+        maps = [(m, self._frames[stamps[j]].pose, side == SWEEP) for j in near
+                for side, m in self._frames[stamps[j]].depths.items()]
+        pairs = [m for side, m in kf.depths.items() if side != SWEEP]
         keep_pts, keep_col = [], []
-        for own in kf.depths.values():
+        for side, own in sorted(kf.depths.items()):  # the sweep (2) after the pairs
             pts, colours = own.points_camera()
             world = pts @ kf.pose[:3, :3].T + kf.pose[:3, 3]
+            if side == SWEEP:  # only where no pair of this keyframe has depth
+                free = np.ones(len(pts), bool)
+                for m in pairs:
+                    free &= ~agreeing(world, kf.pose, m, np.inf)[0]
+                pts, colours, world = pts[free], colours[free], world[free]
             votes = np.zeros(len(pts), np.int32)
-            total = world.copy()
-            for m, pose, _ in maps:  # the keyframe's other side is an independent pair too
+            total, weight = world.copy(), np.ones(len(pts))
+            for m, pose, swept in maps:  # the keyframe's other side is an independent pair too
                 if m is not own and (self.cfg.average or np.any(votes < self.cfg.min_consistent)):
                     ok, ratio = agreeing(world, pose, m, self.cfg.consistency_rel)
                     votes += ok
                     # The other map's estimate of the same surface point, along its own ray:
-                    # averaging independent pairs shrinks SGBM's sub-pixel noise.
-                    total[ok] += pose[:3, 3] + (world[ok] - pose[:3, 3]) * ratio[ok, None]
+                    # averaging independent pairs shrinks SGBM's sub-pixel noise. A coarser
+                    # sweep only votes for a pair's points.
+                    if side == SWEEP or not swept:
+                        total[ok] += pose[:3, 3] + (world[ok] - pose[:3, 3]) * ratio[ok, None]
+                        weight += ok
             keep = votes >= self.cfg.min_consistent
             if self.cfg.average:
-                world = total / (1.0 + votes[:, None])
+                world = total / weight[:, None]
                 pts = (world - kf.pose[:3, 3]) @ kf.pose[:3, :3]
             keep_pts.append(pts[keep])
             keep_col.append(colours[keep])
@@ -210,7 +305,7 @@ class DenseFusion:
     def pairs(self) -> list[tuple[int, int]]:
         """(keyframe, partner) stamps of every depth map held."""
         return [(s, d.pair_stamp) for s, kf in sorted(self._frames.items())
-                for d in kf.depths.values()]
+                for side, d in kf.depths.items() if side != SWEEP]
 
     @property
     def keyframes(self) -> int:

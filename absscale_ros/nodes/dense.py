@@ -4,16 +4,17 @@ dense: the metric dense cloud, from keyframe stereo fused with the metric keyfra
 Subscribes ``/absscale/keyframes`` (Image), ``/absscale/camera_info`` and
 ``/absscale/scaled_path`` (metric T_world_cam of every keyframe, from ``scale``). Keyframes
 wait (at the working scale) until a metric pose exists for them; each path update runs
-``core/dense_fusion.py`` (new keyframes get a depth map, moved pairs are recomputed) and, when
-the cloud changed, publishes it on ``/scaled_cloud`` (x y z in metres, rgb, normals; reliable +
-TRANSIENT_LOCAL depth 1). ``absscale run`` starts it only with ``enabled: true``, and then the
-scale node's sparse cloud moves to ``/absscale/sparse_cloud_metric``.
+``core/dense_fusion.py`` (new keyframes get depth maps, from pairs and a plane sweep; moved
+ones are recomputed) and, when the cloud changed, publishes it on ``/scaled_cloud`` (x y z in
+metres, rgb, normals; reliable + TRANSIENT_LOCAL depth 1). ``absscale run`` starts it only
+with ``enabled: true``, and then the scale node's sparse cloud moves to
+``/absscale/sparse_cloud_metric``.
 """
 import time
 from typing import Any
 
 from absscale_ros import conversions
-from absscale_ros.core import dense_fusion, dense_stereo
+from absscale_ros.core import dense_fusion, dense_stereo, dense_sweep
 from absscale_ros.nodes import common
 from nav_msgs.msg import Path
 import numpy as np
@@ -33,9 +34,10 @@ class DenseNode(Node):
         super().__init__('dense', **kwargs)
         stereo = common.declare_config(self, dense_stereo.StereoConfig(), 'stereo')
         fusion = common.declare_config(self, dense_fusion.FusionConfig(), 'fusion')
+        sweep = common.declare_config(self, dense_sweep.SweepConfig(), 'sweep')
         self.declare_parameter('enabled', True)  # read by `absscale run`: start this node?
         self._frame = self.declare_parameter('frame_id', 'map').value
-        self._fusion = dense_fusion.DenseFusion(stereo, fusion)
+        self._fusion = dense_fusion.DenseFusion(stereo, fusion, sweep)
         self._camera: Any = None
         self._points = 0
         self._stamp_ns = 0  # of the latest path: the cloud's stamp
@@ -102,7 +104,8 @@ class DenseNode(Node):
     def report_summary(self) -> dict[str, Any]:
         times = self.update_s or [float('nan')]
         return {'points': self._points, 'keyframes_fused': self._fusion.keyframes,
-                'depth_maps_computed': self._fusion.depth_computed, 'updates': len(self.update_s),
+                'depth_maps_computed': self._fusion.depth_computed,
+                'sweeps_computed': self._fusion.sweeps_computed, 'updates': len(self.update_s),
                 'update_cpu_s_median': float(np.median(times)),
                 'update_cpu_s_p95': float(np.percentile(times, 95))}
 

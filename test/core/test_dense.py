@@ -1,7 +1,7 @@
 """Dense stereo and fusion on rendered keyframes with exact poses, against the scene mesh."""
 
-from absscale_ros.core import dense_fusion, dense_stereo
-from dense_scenes import forward_keyframes, sideways_keyframes
+from absscale_ros.core import dense_fusion, dense_stereo, dense_sweep
+from dense_scenes import forward_keyframes, forward_walk, sideways_keyframes
 import numpy as np
 
 # The test frames are 640x360: match at full size (the configs halve 1280x720 keyframes).
@@ -93,3 +93,33 @@ def test_only_moved_pairs_are_recomputed() -> None:
     turned[3][:3, :3] = R @ turned[3][:3, :3]
     _fused(turned, fusion)
     assert fusion.depth_computed == first + sum(3 in pair for pair in pairs)
+
+
+def test_plane_sweep_gives_depth_where_the_camera_walks_forward() -> None:
+    images, cam, poses, mesh = forward_walk()
+    # Every pair of this walk runs mostly along the view: none is rectified.
+    assert all(dense_stereo.pair_quality(poses[2], T, 2.0, STEREO) is None
+               for k, T in enumerate(poses) if k != 2)
+    cfg = dense_sweep.SweepConfig(scale=1.0)
+    views = [dense_sweep.pinhole_view(image, cam, cfg) for image in images]
+    others = [(views[k][1], dense_stereo.relative_pose(poses[2], poses[k])) for k in (0, 1, 3, 4)]
+    K = views[2][2]
+    depth = dense_sweep.sweep(views[2][1], others, K, 0.8, 8.0, cfg)
+    v, u = np.nonzero(depth > 0)
+    z = depth[v, u].astype(np.float64)
+    pts = np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], axis=1)
+    assert len(z) > 0.2 * depth.size  # textured surfaces away from the epipole
+    dist = mesh.distance(pts @ poses[2][:3, :3].T + poses[2][:3, 3])
+    assert np.median(dist) < 0.005 * np.median(z) and np.mean(dist > 0.05) < 0.1
+    # Through the fusion: no pair at all, yet a consistent cloud from the sweeps.
+    fusion = dense_fusion.DenseFusion(STEREO, FUSION, dense_sweep.SweepConfig(scale=0.5))
+    for k, image in enumerate(images):
+        fusion.add_keyframe(k, image, cam)
+    fusion.update(dict(enumerate(poses)))
+    while fusion.backlog:
+        fusion.catch_up()
+    xyz, _, _ = fusion.cloud()
+    assert fusion.pairs == [] and fusion.sweeps_computed == len(poses) - 1
+    assert len(xyz) > 1500  # none without the sweep
+    dist = mesh.distance(xyz)
+    assert np.median(dist) < 0.005 * np.median(z) and np.percentile(dist, 90) < 0.02 * np.median(z)
