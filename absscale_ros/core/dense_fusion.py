@@ -230,7 +230,8 @@ class DenseFusion:
         depth = dense_sweep.sweep(grey, [(f.view[1], T) for f, (_, T) in zip(frames[1:], views)],
                                   K, near, far, self.sweep)
         centres = [-T[:3, :3].T @ T[:3, 3] for _, T in views]
-        depth[~dense_sweep.precise(depth, K, centres, self.stereo.max_depth_baselines)] = 0.0
+        depth[~dense_sweep.precise(depth, K, centres, self.sweep.max_depth_baselines,
+                                   self.sweep.max_step_m)] = 0.0
         return dense_stereo.DepthMap(depth, colour, K, np.eye(3), -1, np.eye(4))
 
     def _depth_range(self, stamps: list[int], i: int, guess: float) -> tuple[float, float]:
@@ -278,15 +279,21 @@ class DenseFusion:
             votes = np.zeros(len(pts), np.int32)
             total, weight = world.copy(), np.ones(len(pts))
             for m, pose, swept in maps:  # the keyframe's other side is an independent pair too
-                if m is not own and (self.cfg.average or np.any(votes < self.cfg.min_consistent)):
+                # The other map's estimate of the same surface point, along its own ray:
+                # averaging independent pairs shrinks SGBM's sub-pixel noise. A coarser
+                # sweep only votes for a pair's points (those still short of votes).
+                mean = self.cfg.average and (side == SWEEP or not swept)
+                short = votes < self.cfg.min_consistent
+                if m is own or not (mean or np.any(short)):
+                    continue
+                if mean:
                     ok, ratio = agreeing(world, pose, m, self.cfg.consistency_rel)
-                    votes += ok
-                    # The other map's estimate of the same surface point, along its own ray:
-                    # averaging independent pairs shrinks SGBM's sub-pixel noise. A coarser
-                    # sweep only votes for a pair's points.
-                    if side == SWEEP or not swept:
-                        total[ok] += pose[:3, 3] + (world[ok] - pose[:3, 3]) * ratio[ok, None]
-                        weight += ok
+                    total[ok] += pose[:3, 3] + (world[ok] - pose[:3, 3]) * ratio[ok, None]
+                    weight += ok
+                else:
+                    ok = np.zeros(len(world), bool)
+                    ok[short] = agreeing(world[short], pose, m, self.cfg.consistency_rel)[0]
+                votes += ok
             keep = votes >= self.cfg.min_consistent
             if self.cfg.average:
                 world = total / weight[:, None]

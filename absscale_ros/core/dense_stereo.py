@@ -37,6 +37,7 @@ class StereoConfig:
     max_disparities: int = 256  # widest disparity search, px
     min_disparity_px: float = 2.0  # smaller disparities (far, imprecise) are discarded
     max_depth_baselines: float = 15.0  # deeper than this many baselines: too imprecise, dropped
+    max_step_m: float = 0.0  # depth change per pixel of disparity larger than this: dropped
     max_canvas_grow: float = 1.5  # rectified image at most this much larger than the keyframe
     widen_left: bool = True  # widen the canvas by SGBM's blind left margin (disparity range)
 
@@ -195,6 +196,8 @@ def compute_depth(ref_bgr: np.ndarray, other_bgr: np.ndarray, camera: CameraMode
     f = K_rect[0, 0]
     depth = np.where(disp >= cfg.min_disparity_px, f * baseline / np.maximum(disp, 1e-6), 0)
     depth[~_precise(depth, K_rect, baseline, cfg.max_depth_baselines)] = 0.0
+    if cfg.max_step_m > 0.0:  # far points, however good relative to their depth (z^2 / f B)
+        depth[depth * depth > cfg.max_step_m * f * baseline] = 0.0
     return DepthMap(depth.astype(np.float32), rect[0], K_rect, R_ref, pair_stamp, T)
 
 

@@ -39,6 +39,8 @@ class SweepConfig:
     truncate: float = 0.6  # one neighbour's cost (1 - correlation) counts at most this much
     min_texture: float = 2.0  # windows with a smaller grey-level deviation are dropped
     min_baseline_ratio: float = 0.02  # neighbours closer than this x depth: no parallax
+    max_depth_baselines: float = 15.0  # deeper than this many baselines across the ray: dropped
+    max_step_m: float = 0.0  # range change per pixel of parallax larger than this: dropped
     max_angle_deg: float = 40.0  # neighbours looking further away are not used, degrees
 
     def __post_init__(self) -> None:
@@ -78,32 +80,39 @@ def sweep(ref: Image32, others: list[tuple[Image32, FloatArray]], K: FloatArray,
     win = (cfg.window_px, cfg.window_px)
     mu_r = cv2.boxFilter(ref, -1, win)
     sd_r = np.sqrt(np.maximum(cv2.boxFilter(ref * ref, -1, win) - mu_r * mu_r, 0.0))
+    sd_r_eps = sd_r + np.float32(1e-2)
     widest = max(float(np.linalg.norm(T[:3, 3])) for _, T in others)
     count = int(np.ceil((1.0 / near_m - 1.0 / far_m) * K[0, 0] * widest / cfg.plane_step_px))
     inv = np.linspace(1.0 / near_m, 1.0 / far_m, int(np.clip(count, 8, cfg.max_planes)))
     K_inv = np.linalg.inv(K)
+    floor = np.float32(1.0 - cfg.truncate)  # a neighbour's correlation counts at least this
     best = np.full((h, w), np.inf, np.float32)
     index = np.zeros((h, w), np.int32)
-    left, right = np.full_like(best, np.inf), np.full_like(best, np.inf)
-    previous = np.full_like(best, np.inf)
+    left, right, previous = best.copy(), best.copy(), best.copy()
+    tmp, cost = np.empty_like(best), np.empty_like(best)
     for k, inv_d in enumerate(inv):
-        cost = np.zeros((h, w), np.float32)
+        score = np.zeros((h, w), np.float32)
         for img, T in others:
             # x_other ~ K (R + t n^T / d) K^-1 x_ref for the plane z = d, n = (0, 0, 1)
             H = K @ (T[:3, :3] + np.outer(T[:3, 3], [0.0, 0.0, inv_d])) @ K_inv
             warped = cv2.warpPerspective(img, H, (w, h), flags=cv2.INTER_LINEAR
                                          | cv2.WARP_INVERSE_MAP, borderValue=0.0)
             mu_w = cv2.boxFilter(warped, -1, win)
-            var_w = cv2.boxFilter(warped * warped, -1, win) - mu_w * mu_w
-            cross = cv2.boxFilter(ref * warped, -1, win) - mu_r * mu_w
-            ncc = cross / (sd_r * np.sqrt(np.maximum(var_w, 1e-3)) + 1e-3)
-            cost += np.minimum(1.0 - ncc, cfg.truncate)
-        cost /= len(others)
-        right[index == k - 1] = cost[index == k - 1]
+            var_w = cv2.boxFilter(np.multiply(warped, warped, out=tmp), -1, win)
+            cross = cv2.boxFilter(np.multiply(ref, warped, out=tmp), -1, win)
+            var_w -= np.multiply(mu_w, mu_w, out=tmp)
+            np.sqrt(np.maximum(var_w, 1e-4, out=var_w), out=var_w)
+            cross -= np.multiply(mu_r, mu_w, out=tmp)
+            cross /= np.multiply(var_w, sd_r_eps, out=tmp)  # the correlation
+            score += np.maximum(cross, floor, out=cross)
+        np.subtract(1.0, score / len(others), out=cost)
+        np.copyto(right, cost, where=index == k - 1)
         better = cost < best
-        left[better], right[better] = previous[better], np.inf
-        best[better], index[better] = cost[better], k
-        previous = cost
+        np.copyto(left, previous, where=better)
+        np.copyto(right, np.inf, where=better)
+        np.copyto(best, cost, where=better)
+        np.copyto(index, k, where=better)
+        previous, cost = cost, previous
     # Parabola through the best plane and its two neighbours (in plane-index units).
     curve = left - 2.0 * best + right
     ok = np.isfinite(curve) & (curve > 1e-6)
@@ -113,11 +122,12 @@ def sweep(ref: Image32, others: list[tuple[Image32, FloatArray]], K: FloatArray,
     return np.where(ok, 1.0 / np.maximum(inv_depth, 1e-9), 0.0).astype(np.float32)
 
 
-def precise(depth: Image32, K: FloatArray, centres: list[FloatArray],
-            max_baselines: float) -> npt.NDArray[np.bool_]:
+def precise(depth: Image32, K: FloatArray, centres: list[FloatArray], max_baselines: float,
+            max_step_m: float = 0.0) -> npt.NDArray[np.bool_]:
     """
     Pixels whose range is at most ``max_baselines`` times the widest neighbour's baseline
-    across their ray (near a neighbour's epipole its parallax vanishes).
+    across their ray (near a neighbour's epipole its parallax vanishes), and whose range
+    changes by at most ``max_step_m`` per pixel of parallax (range^2 / f B; 0: no limit).
 
     :param centres: the neighbours' camera centres in the reference camera, m.
     """
@@ -130,4 +140,7 @@ def precise(depth: Image32, K: FloatArray, centres: list[FloatArray],
     for c in centres:
         along = unit @ c
         across = np.maximum(across, np.sqrt(np.maximum(c @ c - along * along, 0.0)))
-    return depth * length <= max_baselines * across
+    ok = depth * length <= max_baselines * across
+    if max_step_m > 0.0:
+        ok &= (depth * length) ** 2 <= max_step_m * K[0, 0] * across
+    return ok
