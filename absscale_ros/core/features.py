@@ -24,12 +24,13 @@ class FeatureConfig:
     min_inliers: int = 20  # fewer verified matches than this is no match at all
     max_width_px: int = 640  # detect on a copy downscaled to this width (0: full size)
     flann_checks: int = 32  # > 0: approximate k-d tree matching, leaves checked; 0: brute force
+    flann_trees: int = 4  # randomised k-d trees of that index
 
     def __post_init__(self) -> None:
         if self.detector not in DETECTORS:
             raise ValueError(f'detector must be one of {DETECTORS}, got {self.detector!r}')
         if self.max_features < 8 or not 0.0 < self.ratio < 1.0 or self.ransac_px <= 0.0 or \
-                self.max_width_px < 0 or self.flann_checks < 0:
+                self.max_width_px < 0 or self.flann_checks < 0 or self.flann_trees < 1:
             raise ValueError(f'bad feature config {self}')
         if self.min_inliers < 8:
             raise ValueError('min_inliers must be >= 8 (eight-point fundamental matrix)')
@@ -107,7 +108,7 @@ class Index:
         self._checks = cfg.flann_checks if descriptors.dtype == np.float32 else 0
         if self._checks and self._n >= 2:
             cv2.setRNGSeed(0)  # the k-d trees are randomised: the same input, the same trees
-            self._flann = cv2.flann_Index(descriptors, {'algorithm': 1, 'trees': 4})
+            self._flann = cv2.flann_Index(descriptors, {'algorithm': 1, 'trees': cfg.flann_trees})
         else:
             self._bf = cv2.BFMatcher(cv2.NORM_L2 if descriptors.dtype == np.float32
                                      else cv2.NORM_HAMMING)

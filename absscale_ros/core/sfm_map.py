@@ -180,28 +180,39 @@ class SfmMap:
         (landmark id, keyframe id, reprojection error px) of every observation, or only of
         those in the keyframes ``kf_subset``.
         """
-        lm_ids, kf_ids, uvs = [], [], []
+        lm_ids, kf_ids, err = self._residuals(K, kf_subset)
+        return list(zip(lm_ids.tolist(), kf_ids.tolist(), err.tolist()))
+
+    def _residuals(self, K: FloatArray, kf_subset: set[int] | None = None
+                   ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64], FloatArray]:
+        """``residuals_px`` as three arrays, built without a Python loop per observation."""
+        lms = self.landmarks
         if kf_subset is None:
-            triples = ((i, k, uv) for i, lm in self.landmarks.items()
-                       for k, uv in lm.obs_px.items())
+            counts = np.fromiter((len(lm.obs_px) for lm in lms.values()), np.int64, len(lms))
+            lm_ids = np.repeat(np.fromiter(lms, np.int64, len(lms)), counts)
+            kf_ids = np.fromiter((k for lm in lms.values() for k in lm.obs_px), np.int64,
+                                 int(counts.sum()))
+            uvs = [uv for lm in lms.values() for uv in lm.obs_px.values()]
         else:  # from the keyframes' side: O(their keypoints), not O(track lengths)
-            triples = ((i, k, self.landmarks[i].obs_px[k]) for k in kf_subset
-                       for i in self._seen(k) if i in self.landmarks and
-                       k in self.landmarks[i].obs_px)
-        for lm_id, kf_id, uv in triples:
-            lm_ids.append(lm_id)
-            kf_ids.append(kf_id)
-            uvs.append(uv)
+            pairs = [(i, k) for k in kf_subset for i in self._seen(k)
+                     if i in lms and k in lms[i].obs_px]
+            lm_ids = np.array([i for i, _ in pairs], np.int64)
+            kf_ids = np.array([k for _, k in pairs], np.int64)
+            uvs = [lms[i].obs_px[k] for i, k in pairs]
         if not uvs:
-            return []
-        pts = np.array([self.landmarks[i].point_world for i in lm_ids])
-        T = np.array([self.keyframes[i].T_world_cam for i in kf_ids])
+            return lm_ids, kf_ids, np.zeros(0)
+        # One pose and one point per observation, gathered by id through sorted id arrays.
+        kf_all = np.array(sorted(self.keyframes), np.int64)
+        T = np.array([self.keyframes[i].T_world_cam for i in kf_all.tolist()])
+        T = T[np.searchsorted(kf_all, kf_ids)]
+        uniq, inv = np.unique(lm_ids, return_inverse=True)
+        pts = np.array([lms[i].point_world for i in uniq.tolist()]).reshape(-1, 3)[inv]
         p_cam = np.einsum('nji,nj->ni', T[:, :3, :3], pts - T[:, :3, 3])
         with np.errstate(divide='ignore', invalid='ignore'):
             uv_hat = p_cam[:, :2] / p_cam[:, 2:] @ K[:2, :2].T + K[:2, 2]
         err = np.linalg.norm(uv_hat - np.array(uvs), axis=1)
         err[~(p_cam[:, 2] > 0.0)] = np.inf
-        return list(zip(lm_ids, kf_ids, err.tolist()))
+        return lm_ids, kf_ids, err
 
     def _seen(self, kf_id: int) -> set[int]:
         """Ids of the landmarks keyframe ``kf_id`` has a keypoint or a vertex of."""
@@ -213,7 +224,7 @@ class SfmMap:
 
     def reprojection_rms_px(self, K: FloatArray, kf_subset: set[int] | None = None) -> float:
         """RMS reprojection error of all observations (or of those in ``kf_subset``), px."""
-        errs = np.array([e for _, _, e in self.residuals_px(K, kf_subset)])
+        errs = self._residuals(K, kf_subset)[2]
         return float(np.sqrt(np.mean(errs**2))) if errs.size else float('nan')
 
     def cull(self, K: FloatArray, max_px: float) -> int:
@@ -221,9 +232,10 @@ class SfmMap:
         Drop observations with reprojection error over ``max_px`` (non-finite counts as over),
         then landmarks seen by fewer than two keyframes. Returns the landmarks removed.
         """
-        for lm_id, kf_id, err in self.residuals_px(K):
-            if not err <= max_px:
-                self.unobserve(lm_id, kf_id)
+        lm_ids, kf_ids, err = self._residuals(K)
+        bad = ~(err <= max_px)
+        for lm_id, kf_id in zip(lm_ids[bad].tolist(), kf_ids[bad].tolist()):
+            self.unobserve(lm_id, kf_id)
         weak = [i for i, lm in self.landmarks.items() if len(lm.obs_px) < 2]
         for lm_id in weak:
             self.remove_landmark(lm_id)
