@@ -69,13 +69,16 @@ class FrameDetections:
 
 
 def detect(image_bgr: npt.NDArray[np.uint8], cfg: DetectConfig,
-           K: npt.NDArray[np.float64] | None = None) -> FrameDetections:
+           K: npt.NDArray[np.float64] | None = None,
+           dist: npt.NDArray[np.float64] | None = None) -> FrameDetections:
     """
     Run the configured detectors on one BGR image.
 
     :param image_bgr: (H, W, 3) uint8 BGR image (distorted is fine: edges are fitted locally).
     :param K: (3, 3) intrinsics px, used by the sheet aspect and cube shape checks; None to
         estimate.
+    :param dist: OpenCV distortion coefficients (CameraInfo D), used with ``K`` by the sheet
+        aspect check; None for none.
     """
     if image_bgr.ndim != 3 or image_bgr.shape[2] != 3 or image_bgr.dtype != np.uint8:
         raise ValueError(f'need an (H, W, 3) uint8 image, got {image_bgr.shape} {image_bgr.dtype}')
@@ -92,7 +95,7 @@ def detect(image_bgr: npt.NDArray[np.uint8], cfg: DetectConfig,
     if sheet_cfgs:
         looked.append('sheet')
     for sheet_cfg in sheet_cfgs:
-        for det in detect_sheet.detect_sheets(image_bgr, sheet_cfg, K, half):
+        for det in detect_sheet.detect_sheets(image_bgr, sheet_cfg, K, half, dist):
             if not any(_same_sheet(det, d) for d in found):
                 found.append(det)
     found = [replace(d, object_id=i) for i, d in enumerate(found)]

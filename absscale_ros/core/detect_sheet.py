@@ -26,6 +26,10 @@ FIRST_PASS_SUPPORT = 0.25  # a side less supported after the widest refinement p
 # Refinement bands after the widest, px: for a whole quad one fine pass is as exact as two on
 # the tuning bags (sides seen in part need both: ``sheet_partial.FINE_BANDS``).
 FINE_BANDS = (3.0,)
+BLUR_MAX_QUADS = 4  # rough quadrilaterals retried as a blurred sheet, per frame
+BLUR_MIN_RAMP_PX = 4.0  # a blurred sheet's most smeared side ramps over more (25-75 %)
+BLUR_RAMP_PX = 8.0  # a ramp this wide (25-75 %) doubles the corner noise the aspect allows
+BLUR_ASPECT_CAP = 2.0  # times ``aspect_tol``: the largest aspect tolerance of a blurred sheet
 STUB_MAX_HYPS = 8  # stub hypotheses refined per frame at most (whitest, longest sides first)
 
 
@@ -83,6 +87,9 @@ class SheetConfig:
     :param stub_px: a sheet whose hidden corner covers nearly all of one side is recovered
         from the camera intrinsics when that side shows an edge over this many px next to
         its seen corner (``sheet_stub``; 0 turns it off).
+    :param blur_band_frac: when nothing else is found, rough quadrilaterals are retried as a
+        motion-blurred sheet, each side searched this fraction of the shorter side either
+        side (``_accept_blurred``; 0 turns it off).
     """
 
     sheet: str = 'letter'
@@ -114,6 +121,7 @@ class SheetConfig:
     ridge_ratio: float = 0.3
     min_seen: float = 0.4
     stub_px: float = 8.0
+    blur_band_frac: float = 0.4
 
     def __post_init__(self) -> None:
         if not 0.0 < self.min_area_frac < 1.0:
@@ -191,8 +199,8 @@ def _quad_from_sides(quad_px: Array, out: sides.Refined, coarse_band_px: float
 
 
 def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
-                  K: Array | None = None, half: npt.NDArray[np.uint8] | None = None
-                  ) -> list[targets.TargetDetection]:
+                  K: Array | None = None, half: npt.NDArray[np.uint8] | None = None,
+                  dist: Array | None = None) -> list[targets.TargetDetection]:
     """
     Find every sheet of the configured size in a BGR image.
 
@@ -202,6 +210,7 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
     :param image_bgr: (H, W, 3) uint8 BGR image.
     :param K: (3, 3) intrinsics px for the aspect check, or None to estimate.
     :param half: the image box-filtered to half its size, when another detector made it.
+    :param dist: OpenCV distortion coefficients of the camera (the aspect check undoes them).
     :returns: detections, best first; each has 4 corners ordered as in ``targets``.
     """
     h, w = image_bgr.shape[:2]
@@ -210,16 +219,18 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
     found: list[Found] = []
     band = max(6.0, 3.0 / scale)
     quads_, regions = sheet_candidates.candidates(work, cfg)
-    _accept_quads(image_bgr, [(q + 0.5) / scale - 0.5 for q in quads_], band, cfg, K, found)
+    unfound = _accept_quads(image_bgr, [(q + 0.5) / scale - 0.5 for q in quads_], band, cfg,
+                            K, found, dist)
     if not found and cfg.line_candidates:
         line_quads = _line_candidates(image_bgr, cfg)
         if line_quads:
-            _accept_quads(image_bgr, [q for q, _ in line_quads], line_quads[0][1], cfg, K, found)
+            _accept_quads(image_bgr, [q for q, _ in line_quads], line_quads[0][1], cfg, K, found,
+                          dist)
     if not found and cfg.min_seen < 1.0:
         pents = [(p + 0.5) / scale - 0.5 for p in sheet_candidates.pentagons(regions)]
         _accept_partial(image_bgr, [sheet_partial.hypotheses(p, cfg.min_seen) for p in pents],
                         lambda hyp, out: sheet_partial.finish(hyp, out, band), band, cfg, K,
-                        found)
+                        found, dist=dist)
     if not found and cfg.stub_px > 0.0:
         K_ = K if K is not None else _guess_K(cfg.focal_frac, image_bgr.shape)
         hyps = sheet_stub.first_hypotheses(regions, scale, K_, cfg.stub_px, STUB_MAX_HYPS)
@@ -229,9 +240,12 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
                         lambda hyp, out: sheet_stub.finish(hyp, out, band, K_, aspect,
                                                            image_bgr=image_bgr), band,
                         cfg, K, found, rough_aspect=False, checked=sheet_stub.CHECKED,
+                        dist=dist,
                         fine_bands=sheet_stub.FINE_BANDS,
                         screen=lambda hyp, out: sheet_stub.finish(
                             hyp, out, band, K_, aspect, sheet_stub.SCREEN_SLACK) is not None)
+    if not found and cfg.blur_band_frac > 0.0:
+        _accept_blurred(image_bgr, unfound, band, cfg, K, found, dist)
     found.sort(key=lambda f: -f[0])
     return [_detection(f, sheet_checks.best_model(f[1], image_bgr.shape, cfg, K)) for f in found]
 
@@ -272,15 +286,21 @@ def _accept(image_bgr: npt.NDArray[np.uint8], quad_full: Array, band: float, cfg
 
 
 def _accept_quads(image_bgr: npt.NDArray[np.uint8], quads_full: list[Array], band: float,
-                  cfg: SheetConfig, K: Array | None, found: list[Found]) -> None:
+                  cfg: SheetConfig, K: Array | None, found: list[Found],
+                  dist: Array | None = None) -> list[Array]:
     """
     Refine candidates (all at once, ``_refine_quads``); append each that passes every test to
-    ``found``, in order.
+    ``found``, in order. Return those whose sides were not found or not supported (for
+    ``_accept_blurred``).
     """
     # Rough corners: a looser aspect test here, the exact one after refinement.
     quads_full = [q for q in quads_full
-                  if sheet_checks.aspect_ok(q, image_bgr.shape, cfg, K, cfg.rough_aspect_tol)]
+                  if sheet_checks.aspect_ok(q, image_bgr.shape, cfg, K, cfg.rough_aspect_tol,
+                                            dist)]
+    unfound = []
     for quad, refined in zip(quads_full, _refine_quads(image_bgr, quads_full, band)):
+        if refined is None or refined[1].min() < cfg.min_support:
+            unfound.append(quad)
         if refined is None or any(
                 np.hypot(*(quad[:, None] - f[1][None]).T).min(axis=0).max() <= band
                 for f in found):
@@ -288,9 +308,60 @@ def _accept_quads(image_bgr: npt.NDArray[np.uint8], quads_full: list[Array], ban
         # (``_passes`` applies the floor-tile test to the refined corners: refining every
         # candidate together costs less than testing the rough ones first)
         if sheet_checks.big_enough(refined[0], image_bgr.shape, cfg) and \
-                sheet_checks.passes(image_bgr, refined, cfg, K) and \
+                sheet_checks.passes(image_bgr, refined, cfg, K, dist=dist) and \
                 all(np.abs(refined[0] - f[1]).max() > 4.0 for f in found):
             found.append((float(refined[1].mean()), refined[0], refined[0], None))
+    return unfound
+
+
+def _accept_blurred(image_bgr: npt.NDArray[np.uint8], quads_full: list[Array], band: float,
+                    cfg: SheetConfig, K: Array | None, found: list[Found],
+                    dist: Array | None = None) -> None:
+    """
+    Retry the rough quadrilaterals as a sheet smeared by motion blur: its sides are ramps
+    longer than the refinement band, whose steepest point wanders along them. Each side is
+    found at the mid level between the colours inside and outside (``sides.refine`` with
+    ``blurred``) in a band of ``cfg.blur_band_frac`` of the quadrilateral's shorter side.
+    Only quadrilaterals whose sides the sharp refinement did not find come here (a sharp
+    board of the wrong aspect is not retried), one side must ramp over ``BLUR_MIN_RAMP_PX``
+    or more, like its opposite side, and the aspect test allows corner shifts growing with
+    the ramp (``BLUR_RAMP_PX``), up to
+    ``BLUR_ASPECT_CAP`` times ``cfg.aspect_tol``.
+    """
+    for quad in quads_full[:BLUR_MAX_QUADS]:
+        side = float(np.linalg.norm(quad - np.roll(quad, -1, axis=0), axis=1).min())
+        wide = max(band, cfg.blur_band_frac * side)
+        ends = np.stack([quad, np.roll(quad, -1, axis=0)], axis=1)
+        rough = np.array([lines.line_through(p0, p1, quad.mean(axis=0)) for p0, p1 in ends])
+        n = int(np.clip(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1).mean() / 4.0, 16, 64))
+        out = sides.refine_many(image_bgr, [rough], [ends], (wide, 0.5 * wide), [n],
+                                FIRST_PASS_SUPPORT, blurred=True)[0]
+        refined = None if out is None else _quad_from_sides(quad, out, wide)
+        if refined is None or not sheet_checks.big_enough(refined[0], image_bgr.shape, cfg):
+            continue
+        ls = np.array([lines.line_through(a, b, refined[0].mean(axis=0))
+                       for a, b in zip(refined[0], np.roll(refined[0], -1, axis=0))])
+        ramps = sides.ramp_widths(image_bgr, ls, np.stack(
+            [refined[0], np.roll(refined[0], -1, axis=0)], axis=1), wide, refined[3],
+            refined[4])
+        if ramps.max() < BLUR_MIN_RAMP_PX or not _blur_alike(ramps):
+            continue  # sharp, or one side smeared by something else than motion
+        tol = sheet_checks.aspect_tolerance(refined[0], cfg, K,
+                                            max(1.0, float(ramps.max()) / BLUR_RAMP_PX),
+                                            BLUR_ASPECT_CAP, dist)
+        if sheet_checks.passes(image_bgr, refined, cfg, K, aspect_tol=tol, dist=dist):
+            found.append((float(refined[1].mean()), refined[0], refined[0], None))
+            return  # one blurred sheet at most: the masks outline it several times
+
+
+def _blur_alike(ramps: Array) -> bool:
+    """
+    Return True when opposite sides (nearly parallel: a motion streak crosses them alike)
+    ramp over similar widths, px: a lit or shaded band along one side of a board is not blur.
+    """
+    pairs = ramps.reshape(2, 2).T  # (0, 2) and (1, 3)
+    gap = np.abs(pairs[:, 0] - pairs[:, 1])
+    return bool((gap <= np.maximum(2.0, 0.5 * pairs.max(axis=1))).all())
 
 
 def _accept_partial(image_bgr: npt.NDArray[np.uint8], groups: list[list[sheet_partial.Partial]],
@@ -298,8 +369,8 @@ def _accept_partial(image_bgr: npt.NDArray[np.uint8], groups: list[list[sheet_pa
                     band: float, cfg: SheetConfig, K: Array | None, found: list[Found],
                     rough_aspect: bool = True, checked: npt.NDArray[np.intp] | None = None,
                     fine_bands: tuple[float, ...] = sheet_partial.FINE_BANDS,
-                    screen: Callable[[sheet_partial.Partial, sides.Refined], bool] | None = None
-                    ) -> None:
+                    screen: Callable[[sheet_partial.Partial, sides.Refined], bool] | None = None,
+                    dist: Array | None = None) -> None:
     """
     Try every hidden-corner hypothesis of each group (one seen region); keep the best
     supported per group. ``rough_aspect``: test the aspect of the rough corners (not for
@@ -316,7 +387,7 @@ def _accept_partial(image_bgr: npt.NDArray[np.uint8], groups: list[list[sheet_pa
     groups = [[h for h in group
                if not sheet_candidates.touches_border(h.corners, image_bgr.shape, band)
                and (not rough_aspect or sheet_checks.aspect_ok(
-                   h.corners, image_bgr.shape, cfg, K, cfg.rough_aspect_tol))]
+                   h.corners, image_bgr.shape, cfg, K, cfg.rough_aspect_tol, dist))]
               for group in groups]
     hyps = [h for g in groups for h in g]
     rough = [sheet_partial.rough_sides(h) for h in hyps]
@@ -331,7 +402,8 @@ def _accept_partial(image_bgr: npt.NDArray[np.uint8], groups: list[list[sheet_pa
             sides_out = next(refined)
             out = None if sides_out is None else finish(hyp, sides_out)
             if out is None or not sheet_checks.big_enough(out[5], image_bgr.shape, cfg) or \
-                    not sheet_checks.passes(image_bgr, out[:5], cfg, K, hyp.seen_ends) or \
+                    not sheet_checks.passes(image_bgr, out[:5], cfg, K, hyp.seen_ends,
+                                            dist=dist) or \
                     not sheet_checks.covered(image_bgr, out[0][3], out[3], cfg):
                 continue
             support = float(out[1].mean())

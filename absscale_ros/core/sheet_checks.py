@@ -39,10 +39,12 @@ def big_enough(outline: Array, shape: tuple[int, ...], cfg: 'SheetConfig') -> bo
 
 
 def passes(image_bgr: npt.NDArray[np.uint8], refined: sides.Refined, cfg: 'SheetConfig',
-           K: Array | None, seen_ends: Array | None = None) -> bool:
+           K: Array | None, seen_ends: Array | None = None,
+           aspect_tol: float | None = None, dist: Array | None = None) -> bool:
     """
     Apply the support, contrast, one-colour, aspect and floor-tile tests to a refined
-    quadrilateral (``seen_ends`` (4, 2, 2): the seen part of each side, default all of it).
+    quadrilateral (``seen_ends`` (4, 2, 2): the seen part of each side, default all of it;
+    ``aspect_tol``: instead of ``aspect_tolerance``; ``dist``: see ``aspect_error``).
     """
     corners, supports, steps, inside, outside = refined
     if supports.min() < cfg.min_support or steps.min() < cfg.min_contrast:
@@ -51,7 +53,8 @@ def passes(image_bgr: npt.NDArray[np.uint8], refined: sides.Refined, cfg: 'Sheet
         return False  # four edges of different things (a table top, its legs, the floor)
     if not one_colour(outside, cfg.max_outside_spread, 1.0, cfg.max_shade):
         return False  # a sheet lies on one surface: wall between table legs, floor below
-    if not aspect_ok(corners, image_bgr.shape, cfg, K, aspect_tolerance(corners, cfg, K)):
+    tol = aspect_tolerance(corners, cfg, K, dist=dist) if aspect_tol is None else aspect_tol
+    if not aspect_ok(corners, image_bgr.shape, cfg, K, tol, dist):
         return False
     return not tile(image_bgr, corners, cfg, seen_ends)
 
@@ -70,9 +73,11 @@ def tile(image_bgr: npt.NDArray[np.uint8], corners: Array, cfg: 'SheetConfig',
     return int((ridges > cfg.ridge_ratio).sum()) > cfg.max_ridges
 
 
-def aspect_tolerance(corners: Array, cfg: 'SheetConfig', K: Array | None) -> float:
+def aspect_tolerance(corners: Array, cfg: 'SheetConfig', K: Array | None,
+                     noise: float = 1.0, cap: float = 1.0, dist: Array | None = None) -> float:
     """
-    Return the aspect test's tolerance for refined ``corners`` (4, 2) px.
+    Return the aspect test's tolerance for refined ``corners`` (4, 2) px (corners ``noise``
+    times less sure than sharp ones: up to ``cap`` times ``cfg.aspect_tol``).
 
     With intrinsics the side ratio is exact up to corner noise, whose effect ranges from a
     fraction of a percent (a big sheet seen from above) to over ten (a small one seen edge-on):
@@ -82,7 +87,8 @@ def aspect_tolerance(corners: Array, cfg: 'SheetConfig', K: Array | None) -> flo
     letter) seen square-on. Without intrinsics: ``cfg.aspect_tol``.
     """
     if K is None or cfg.aspect_corner_px <= 0.0:
-        return cfg.aspect_tol
+        return cfg.aspect_tol * cap
+    corners = undistort(corners, K, dist)
     a0 = lines.rectangle_aspect(corners, K, 0.0, K[:2, 2])
     flat = corners.reshape(-1)
     grads = np.empty(8)
@@ -90,21 +96,33 @@ def aspect_tolerance(corners: Array, cfg: 'SheetConfig', K: Array | None) -> flo
         moved = flat.copy()
         moved[i] += ASPECT_STEP_PX
         grads[i] = lines.rectangle_aspect(moved.reshape(4, 2), K, 0.0, K[:2, 2]) - a0
-    spread = cfg.aspect_corner_px * float(np.linalg.norm(grads)) / (ASPECT_STEP_PX * a0)
-    return float(np.clip(spread, cfg.aspect_floor, cfg.aspect_tol))
+    spread = noise * cfg.aspect_corner_px * float(np.linalg.norm(grads)) / (ASPECT_STEP_PX * a0)
+    return float(np.clip(spread, cfg.aspect_floor, cap * cfg.aspect_tol))
+
+
+def undistort(corners_px: Array, K: Array, dist: Array | None) -> Array:
+    """
+    Return (N, 2) pixel positions without lens distortion (``dist``: OpenCV coefficients, or
+    None for none). Near the image border a barrel lens moves a 4:3 board's aspect 2 % towards
+    letter's: the test is on where a pinhole camera would see the corners.
+    """
+    if dist is None or not np.any(dist):
+        return corners_px
+    pts = np.asarray(corners_px, np.float64).reshape(-1, 1, 2)
+    return cv2.undistortPoints(pts, K, np.asarray(dist, np.float64), P=K).reshape(-1, 2)
 
 
 def aspect_ok(corners: Array, shape: tuple[int, ...], cfg: 'SheetConfig', K: Array | None,
-              tol: float) -> bool:
+              tol: float, dist: Array | None = None) -> bool:
     """Return True when the rectangle imaged as ``corners`` has the sheet's aspect (+-tol)."""
-    return aspect_error(corners, shape, cfg, K) <= tol
+    return aspect_error(corners, shape, cfg, K, dist) <= tol
 
 
 def aspect_error(corners: Array, shape: tuple[int, ...], cfg: 'SheetConfig',
-                 K: Array | None) -> float:
+                 K: Array | None, dist: Array | None = None) -> float:
     """
     Return the relative deviation of the imaged rectangle's aspect from the nearest configured
-    sheet's (``cfg.models()``).
+    sheet's (``cfg.models()``); with intrinsics, after undoing lens distortion ``dist``.
 
     Without intrinsics, the smallest deviation over the focal lengths of ``cfg.focal_range``
     (0 when the aspect passes the sheet's within it): a focal length estimated from the
@@ -114,7 +132,7 @@ def aspect_error(corners: Array, shape: tuple[int, ...], cfg: 'SheetConfig',
     h, w = shape[:2]
     centre = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
     if K is not None:
-        aspects = [lines.rectangle_aspect(corners, K, 0.0, centre)]
+        aspects = [lines.rectangle_aspect(undistort(corners, K, dist), K, 0.0, centre)]
     else:
         aspects = []
         for frac in np.linspace(cfg.focal_range[0], cfg.focal_range[1], FOCAL_STEPS):

@@ -117,6 +117,61 @@ def _edges(samples: Array, step: Array, centres: Array, offs: Array, normals: Ar
     return pts, np.where(ok, peak, 0.0)
 
 
+def _mid_edges(samples: Array, step: Array, inside: Array, outside: Array, centres: Array,
+               offs: Array, normals: Array) -> tuple[Array, Array]:
+    """
+    ``_edges`` for an edge smeared by motion blur: the ramp's steepest point wanders over its
+    whole length, but a symmetric streak keeps the mid-level crossing on the true edge.
+    Strength is the step where the profile starts inside and ends outside, else 0.
+    """
+    off, ok = _crossings(samples, step, inside, outside, offs, 0.5)
+    pts = centres + off[..., None] * normals[:, None, :]
+    return pts, np.where(ok, np.linalg.norm(step, axis=1)[:, None], 0.0)
+
+
+def _crossings(samples: Array, step: Array, inside: Array, outside: Array, offs: Array,
+               level: float) -> tuple[Array, Array]:
+    """
+    Return (S, N) offsets where each profile crosses ``level`` (0 outside .. 1 inside colour)
+    and (S, N) True where it starts above and ends below it. The crossing is the mean of the
+    first and the last pass through the level: noise crosses it more than once.
+    """
+    unit = step / np.maximum(np.sqrt((step * step).sum(axis=1, keepdims=True)), 1e-9)
+    proj = np.einsum('snkc,sc->snk', samples, unit)
+    proj = 0.25 * proj[..., :-2] + 0.5 * proj[..., 1:-1] + 0.25 * proj[..., 2:]
+    lo = np.einsum('sc,sc->s', outside, unit)[:, None]
+    hi = np.einsum('sc,sc->s', inside, unit)[:, None]
+    at_level = lo + level * (hi - lo)
+    above = proj >= at_level[..., None]
+    m = proj.shape[2]
+    first = np.argmin(above, axis=2)  # the first sample below the level
+    last = m - 1 - np.argmax(above[..., ::-1], axis=2)  # the last one above it
+
+    def cross(k: Array) -> Array:  # sub-sample crossing between samples k and k + 1
+        a = np.take_along_axis(proj, k[..., None], axis=2)[..., 0]
+        b = np.take_along_axis(proj, np.minimum(k + 1, m - 1)[..., None], axis=2)[..., 0]
+        return k + np.clip((a - at_level) / np.where(a - b == 0, 1.0, a - b), 0.0, 1.0)
+    at = 0.5 * (cross(np.maximum(first - 1, 0)) + cross(last))
+    ok = above[..., 0] & ~above[..., -1] & (first > 0) & (last < m - 1)
+    return offs[1] + at * STEP_PX, ok  # ``proj`` starts one sample in
+
+
+def ramp_widths(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array, band_px: float,
+                inside: Array, outside: Array, n: int = 16) -> Array:
+    """
+    Return (S,) the distance px between the 25 % and 75 % crossings (from the outside to the
+    inside colour) of each side's median profile across it: about half a motion-blur streak
+    across the side, a pixel or two at a sharp edge. The median over the profiles along a
+    side keeps the texture of the surface around it out.
+    """
+    _, offs, samples = _profiles(image_bgr, lines_, ends, band_px, np.full(len(lines_), n))
+    prof = np.median(samples, axis=1, keepdims=True)  # (S, 1, K, 3)
+    step = inside - outside
+    a, ok_a = _crossings(prof, step, inside, outside, offs, 0.75)
+    b, ok_b = _crossings(prof, step, inside, outside, offs, 0.25)
+    return np.where(ok_a & ok_b, b - a, 0.0)[:, 0]
+
+
 def fit_lines(pts: Array, weights: Array, outward: Array, scale_px: Array,
               iters: int = 3) -> Array:
     """
@@ -148,7 +203,7 @@ def fit_lines(pts: Array, weights: Array, outward: Array, scale_px: Array,
 def refine(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
            bands_px: tuple[float, ...], n: int | npt.NDArray[np.int64],
            min_rel_strength: float = 0.3,
-           colours: tuple[Array, Array] | None = None
+           colours: tuple[Array, Array] | None = None, blurred: bool = False
            ) -> tuple[Array, Array, Array, Array, Array]:
     """
     Refine S sides on the full-resolution image, coarse band to fine band.
@@ -161,6 +216,8 @@ def refine(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
         each side gets what it would get alone).
     :param colours: (S, 3) inside and outside colours measured before (by an earlier pass),
         instead of measuring them in the first band.
+    :param blurred: edges at the mid level between those colours (``_mid_edges``: motion
+        blur), not at the steepest descent; support within 2 px (or 1 % of the side).
     :returns: ((S, 3) refined lines, (S,) support: fraction of profiles whose edge is at least
         ``min_rel_strength`` of the side's median strength and within 1 px (or 0.5% of the
         side) of the refined line, (S,) colour step norm across each side, 0-255 units,
@@ -170,7 +227,7 @@ def refine(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
     ns = np.broadcast_to(np.asarray(n, dtype=np.int64), (len(lines_),))
     valid = _valid(ns)
     length = np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1)
-    tol = np.maximum(1.0, 0.005 * length)
+    tol = np.maximum(2.0, 0.01 * length) if blurred else np.maximum(1.0, 0.005 * length)
     step = inside = outside = np.zeros((len(lines_), 3))
     support = np.zeros(len(lines_))
     for i, band in enumerate(bands_px):
@@ -178,7 +235,11 @@ def refine(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
         if i == 0:
             inside, outside = side_colours(samples, ns) if colours is None else colours
             step = inside - outside
-        pts, strength = _edges(samples, step, centres, offs, lines_[:, :2])
+        if blurred:
+            pts, strength = _mid_edges(samples, step, inside, outside, centres, offs,
+                                       lines_[:, :2])
+        else:
+            pts, strength = _edges(samples, step, centres, offs, lines_[:, :2])
         if ns.min() < ns.max():
             strength = np.where(valid, strength, 0.0)
         med = _median_strength(strength, ns)
@@ -242,12 +303,13 @@ def refine_checked(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
 def refine_many(image_bgr: npt.NDArray[np.uint8], lines_: list[Array], ends: list[Array],
                 bands_px: tuple[float, ...], ns: list[int], min_first_support: float | Array,
                 checked: npt.NDArray[np.intp] | None = None,
-                screen: Callable[[int, Refined], bool] | None = None) -> list[Refined | None]:
+                screen: Callable[[int, Refined], bool] | None = None,
+                blurred: bool = False) -> list[Refined | None]:
     """
     ``refine_checked`` of several candidates (each its (S_c, 3) lines, (S_c, 2, 2) ends and
     profile count) in one ``refine`` call per pass, with the same results: a call costs about
     a millisecond of numpy overhead whatever the number of sides. ``screen(c, first)``: False
-    drops candidate ``c`` after the first pass too.
+    drops candidate ``c`` after the first pass too; ``blurred``: see ``refine``.
     """
     if not lines_:
         return []
@@ -255,7 +317,8 @@ def refine_many(image_bgr: npt.NDArray[np.uint8], lines_: list[Array], ends: lis
     starts = np.cumsum([0] + sizes)
     side_ns = np.repeat(np.asarray(ns, dtype=np.int64), sizes)
     all_ends = np.concatenate(ends)
-    first = refine(image_bgr, np.concatenate(lines_), all_ends, bands_px[:1], side_ns)
+    first = refine(image_bgr, np.concatenate(lines_), all_ends, bands_px[:1], side_ns,
+                   blurred=blurred)
 
     def part(res: tuple[Array, ...], c: int, at: npt.NDArray[np.int64]) -> Refined:
         a, b = at[c], at[c + 1]
@@ -273,7 +336,7 @@ def refine_many(image_bgr: npt.NDArray[np.uint8], lines_: list[Array], ends: lis
         return out
     rows = np.concatenate([np.arange(starts[c], starts[c + 1]) for c in idx])
     second = refine(image_bgr, first[0][rows], all_ends[rows], bands_px[1:], side_ns[rows],
-                    colours=(first[3][rows], first[4][rows]))
+                    colours=(first[3][rows], first[4][rows]), blurred=blurred)
     at = np.cumsum([0] + [sizes[c] for c in idx])
     for j, c in enumerate(idx):
         out[c] = part(second, j, at)

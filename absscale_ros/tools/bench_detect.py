@@ -163,6 +163,7 @@ def bench_bag(path: str, target: str, max_frames: int, tally: Tally,
     if target == 'from-gt':
         target = gt['scene']['variant']['target']
     K = np.array(gt['camera']['K'], float)
+    dist = np.array(gt['camera']['D'], float) if gt['camera'].get('D') else None
     cfg = detect.DetectConfig(target=target)
     topic = gt['bag']['image_topic']
     with bagio.open_bag(path) as reader:
@@ -174,7 +175,7 @@ def bench_bag(path: str, target: str, max_frames: int, tally: Tally,
             img = (conversions.compressed_msg_to_bgr(msg) if compressed
                    else conversions.image_msg_to_bgr(msg))
             t0 = time.process_time()  # CPU time of this process: other load does not count
-            res = detect.detect(img, cfg, K)
+            res = detect.detect(img, cfg, K, dist)
             ms = 1e3 * (time.process_time() - t0)
             fr = gt['frames'][k]
             blur = float(fr.get('motion_blur_px') or 0.0)
