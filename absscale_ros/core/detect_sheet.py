@@ -26,7 +26,8 @@ FIRST_PASS_SUPPORT = 0.25  # a side less supported after the widest refinement p
 # Refinement bands after the widest, px: for a whole quad one fine pass is as exact as two on
 # the tuning bags (sides seen in part need both: ``sheet_partial.FINE_BANDS``).
 FINE_BANDS = (3.0,)
-BLUR_MAX_QUADS = 4  # rough quadrilaterals retried as a blurred sheet, per frame
+ROUGH_ASPECT_CAP = 2.0  # the largest rough aspect tolerance (long/short side ratio 1 to 3.9)
+BLUR_MAX_QUADS = 2  # rough quadrilaterals retried as a blurred sheet, per frame
 BLUR_MIN_RAMP_PX = 4.0  # a blurred sheet's most smeared side ramps over more (25-75 %)
 BLUR_RAMP_PX = 8.0  # a ramp this wide (25-75 %) doubles the corner noise the aspect allows
 BLUR_ASPECT_CAP = 2.0  # times ``aspect_tol``: the largest aspect tolerance of a blurred sheet
@@ -294,9 +295,8 @@ def _accept_quads(image_bgr: npt.NDArray[np.uint8], quads_full: list[Array], ban
     ``_accept_blurred``).
     """
     # Rough corners: a looser aspect test here, the exact one after refinement.
-    quads_full = [q for q in quads_full
-                  if sheet_checks.aspect_ok(q, image_bgr.shape, cfg, K, cfg.rough_aspect_tol,
-                                            dist)]
+    quads_full = [q for q in quads_full if _rough_aspect_ok(q, image_bgr.shape, band, cfg, K,
+                                                            dist)]
     unfound = []
     for quad, refined in zip(quads_full, _refine_quads(image_bgr, quads_full, band)):
         if refined is None or refined[1].min() < cfg.min_support:
@@ -312,6 +312,22 @@ def _accept_quads(image_bgr: npt.NDArray[np.uint8], quads_full: list[Array], ban
                 all(np.abs(refined[0] - f[1]).max() > 4.0 for f in found):
             found.append((float(refined[1].mean()), refined[0], refined[0], None))
     return unfound
+
+
+def _rough_aspect_ok(quad: Array, shape: tuple[int, ...], band: float, cfg: SheetConfig,
+                     K: Array | None, dist: Array | None) -> bool:
+    """
+    The aspect test of rough corners: within ``cfg.rough_aspect_tol``, or with intrinsics more
+    where corners anywhere within the refinement ``band`` change the ratio more (a small
+    sheet seen nearly edge-on: 35 px tall, 1.0 off at rough corners 7 px off, 0.2 % once
+    refined).
+    """
+    err = sheet_checks.aspect_error(quad, shape, cfg, K, dist)
+    if err <= cfg.rough_aspect_tol or K is None:
+        return err <= cfg.rough_aspect_tol
+    noise = band / cfg.aspect_corner_px if cfg.aspect_corner_px > 0.0 else 1.0
+    return err <= sheet_checks.aspect_tolerance(quad, cfg, K, noise,
+                                                ROUGH_ASPECT_CAP / cfg.aspect_tol, dist)
 
 
 def _accept_blurred(image_bgr: npt.NDArray[np.uint8], quads_full: list[Array], band: float,

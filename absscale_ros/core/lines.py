@@ -170,3 +170,22 @@ def rectangle_aspect(corners_px: Array, K: Array | None, focal_px: float,
     a2, a3 = Ki @ n2, Ki @ n3
     ratio = float(np.sqrt((a2 @ a2) / max(a3 @ a3, 1e-18)))
     return max(ratio, 1.0 / max(ratio, 1e-12))
+
+
+def rectangle_aspects(corners_px: Array, K: Array) -> Array:
+    """
+    ``rectangle_aspect`` with intrinsics of many quadrilaterals (M, 4, 2) at once: (M,).
+    """
+    m = np.concatenate([corners_px[:, [0, 1, 3, 2]], np.ones(corners_px.shape[:2] + (1,))],
+                       axis=2)
+    c03 = np.cross(m[:, 0], m[:, 3])
+    k2 = np.einsum('mi,mi->m', c03, m[:, 2]) / np.einsum('mi,mi->m', np.cross(m[:, 1], m[:, 3]),
+                                                         m[:, 2])
+    k3 = np.einsum('mi,mi->m', c03, m[:, 1]) / np.einsum('mi,mi->m', np.cross(m[:, 2], m[:, 3]),
+                                                         m[:, 1])
+    Ki = np.linalg.inv(K)
+    a2 = (k2[:, None] * m[:, 1] - m[:, 0]) @ Ki.T
+    a3 = (k3[:, None] * m[:, 2] - m[:, 0]) @ Ki.T
+    ratio = np.sqrt(np.einsum('mi,mi->m', a2, a2) / np.maximum(np.einsum('mi,mi->m', a3, a3),
+                                                               1e-18))
+    return np.maximum(ratio, 1.0 / np.maximum(ratio, 1e-12))

@@ -53,8 +53,9 @@ def passes(image_bgr: npt.NDArray[np.uint8], refined: sides.Refined, cfg: 'Sheet
         return False  # four edges of different things (a table top, its legs, the floor)
     if not one_colour(outside, cfg.max_outside_spread, 1.0, cfg.max_shade):
         return False  # a sheet lies on one surface: wall between table legs, floor below
-    tol = aspect_tolerance(corners, cfg, K, dist=dist) if aspect_tol is None else aspect_tol
-    if not aspect_ok(corners, image_bgr.shape, cfg, K, tol, dist):
+    err = aspect_error(corners, image_bgr.shape, cfg, K, dist)
+    if err > cfg.aspect_floor and err > (aspect_tolerance(corners, cfg, K, dist=dist)
+                                         if aspect_tol is None else aspect_tol):
         return False
     return not tile(image_bgr, corners, cfg, seen_ends)
 
@@ -88,14 +89,10 @@ def aspect_tolerance(corners: Array, cfg: 'SheetConfig', K: Array | None,
     """
     if K is None or cfg.aspect_corner_px <= 0.0:
         return cfg.aspect_tol * cap
-    corners = undistort(corners, K, dist)
-    a0 = lines.rectangle_aspect(corners, K, 0.0, K[:2, 2])
-    flat = corners.reshape(-1)
-    grads = np.empty(8)
-    for i in range(8):
-        moved = flat.copy()
-        moved[i] += ASPECT_STEP_PX
-        grads[i] = lines.rectangle_aspect(moved.reshape(4, 2), K, 0.0, K[:2, 2]) - a0
+    moved = np.repeat(undistort(corners, K, dist).reshape(1, 8), 9, axis=0)
+    moved[1:] += ASPECT_STEP_PX * np.eye(8)  # row 0 as it is, rows 1-8 one coordinate moved
+    aspects = lines.rectangle_aspects(moved.reshape(9, 4, 2), K)
+    a0, grads = float(aspects[0]), aspects[1:] - aspects[0]
     spread = noise * cfg.aspect_corner_px * float(np.linalg.norm(grads)) / (ASPECT_STEP_PX * a0)
     return float(np.clip(spread, cfg.aspect_floor, cap * cfg.aspect_tol))
 
