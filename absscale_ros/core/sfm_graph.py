@@ -7,8 +7,9 @@ variables iSAM2 re-eliminated per keyframe. They are re-triangulated on the pose
 and every batch adjusts them all.
 
 After each batch iSAM2 starts again from the batch's estimate with only the newest ``window``
-keyframes free: older keyframes enter it (when a landmark they see is re-observed) held by a
-tight prior, so an update costs what the recent part of the map costs, not the whole map. Batches
+keyframes free: observations in older keyframes enter it (when a landmark they see is
+re-observed) as projections into fixed cameras, so an update costs what the recent part of the
+map costs, not the whole map. Batches
 come every ``batch_every`` keyframes, and less often as the map grows (``batch_growth``).
 
 Keys: camera of keyframe ``i`` is ``X(i)``, landmark ``j`` is ``L(j)`` (``pose_key``,
@@ -43,12 +44,15 @@ class GraphConfig:
     window: int = 10  # keyframes iSAM2 may move between batches; older ones are held
     incremental_min_views: int = 3  # a feature landmark enters iSAM2 once this many see it,
     incremental_min_obs: int = 300  # ... or sooner while the newest keyframe has fewer in it
+    relinearize_threshold: float = 0.01  # iSAM2 relinearises a variable that moved this far
+    relinearize_skip: int = 10  # ... checking every this many updates
 
     def __post_init__(self) -> None:
         if min(self.sigma_px, self.vertex_weight, self.huber_k, self.cull_px) <= 0.0 or \
                 self.batch_every < 1 or self.batch_iterations < 1 or self.window < 2 or \
                 self.batch_growth < 0.0 or self.incremental_min_views < 2 or \
-                self.incremental_min_obs < 0:
+                self.incremental_min_obs < 0 or self.relinearize_threshold < 0.0 or \
+                self.relinearize_skip < 1:
             raise ValueError(f'bad graph config {self}')
 
 
@@ -74,18 +78,19 @@ class SegmentGraph:
             huber, gtsam.noiseModel.Isotropic.Sigma(2, cfg.sigma_px))
         self._vertex_noise = gtsam.noiseModel.Robust.Create(
             huber, gtsam.noiseModel.Isotropic.Sigma(2, cfg.sigma_px / np.sqrt(cfg.vertex_weight)))
-        self._held_noise = gtsam.noiseModel.Isotropic.Sigma(6, 1e-4)
         self._last_batch_size = 0
         self._reset()
 
     def _reset(self, free_from: int = -1) -> None:
-        """Empty iSAM2; keyframes with ids below ``free_from`` enter it held by a prior."""
+        """Empty iSAM2; keyframes with ids below ``free_from`` are held: fixed cameras."""
         params = gtsam.ISAM2Params()
-        params.setRelinearizeThreshold(0.01)
+        params.setRelinearizeThreshold(self._cfg.relinearize_threshold)
+        params.relinearizeSkip = self._cfg.relinearize_skip
         self._isam = gtsam.ISAM2(params)
         self._factors: set[tuple[int, int]] = set()  # (kf_id, lm_id) already in iSAM2
         self._keys: set[int] = set()
         self._free_from = free_from
+        self._held_cams: dict[int, gtsam.PinholeCameraCal3_S2] = {}
         self._gauge_done = free_from >= 0  # held keyframes fix the gauge
         self._all_pending = True  # next _new_terms looks at every landmark, not just dirty ones
 
@@ -97,6 +102,11 @@ class SegmentGraph:
     def observations_in(self) -> int:
         """(keyframe, landmark) observations iSAM2 holds since its last restart."""
         return len(self._factors)
+
+    @property
+    def poses_in(self) -> int:
+        """Keyframe poses iSAM2 holds since its last restart (held ones are not variables)."""
+        return sum(1 for k in self._keys if k & ~(2**56 - 1) == _X)
 
     @property
     def held_before(self) -> int:
@@ -113,13 +123,23 @@ class SegmentGraph:
         return gtsam.GenericProjectionFactorCal3_S2(
             lm.obs_px[kf_id], noise, pose_key(kf_id), point_key(lm_id), self._cal)
 
-    def _insert_pose(self, m: sfm_map.SfmMap, kf_id: int, graph: gtsam.NonlinearFactorGraph,
-                     values: gtsam.Values) -> None:
+    def _held_factor(self, m: sfm_map.SfmMap, lm: sfm_map.Landmark, kf_id: int,
+                     lm_id: int) -> gtsam.NonlinearFactor:
+        """
+        Projection into a held keyframe's fixed camera. Held poses used to be variables pinned
+        by a tight prior: long tracks pulled every pose of the segment into iSAM2 that way, and
+        an update's cost grew with the map (40 ms CPU at 7 keyframes, 775 at 72).
+        """
+        cam = self._held_cams.get(kf_id)
+        if cam is None:
+            cam = self._held_cams[kf_id] = gtsam.PinholeCameraCal3_S2(
+                gtsam.Pose3(m.keyframes[kf_id].T_world_cam), self._cal)
+        noise = self._vertex_noise if lm.label is not None else self._noise
+        return gtsam.TriangulationFactorCal3_S2(cam, lm.obs_px[kf_id], noise, point_key(lm_id))
+
+    def _insert_pose(self, m: sfm_map.SfmMap, kf_id: int, values: gtsam.Values) -> None:
         self._keys.add(pose_key(kf_id))
-        pose = gtsam.Pose3(m.keyframes[kf_id].T_world_cam)
-        values.insert(pose_key(kf_id), pose)
-        if kf_id < self._free_from:
-            graph.add(gtsam.PriorFactorPose3(pose_key(kf_id), pose, self._held_noise))
+        values.insert(pose_key(kf_id), gtsam.Pose3(m.keyframes[kf_id].T_world_cam))
 
     def _gauge(self, m: sfm_map.SfmMap, graph: gtsam.NonlinearFactorGraph) -> None:
         """Fix the first pose and the distance to the second (7 gauge freedoms of monocular)."""
@@ -171,9 +191,12 @@ class SegmentGraph:
             if (kf_id, lm_id) in self._factors:
                 continue
             self._factors.add((kf_id, lm_id))
+            if kf_id < self._free_from:  # held: a factor on the point alone
+                graph.add(self._held_factor(m, lm, kf_id, lm_id))
+                continue
             graph.add(self._factor(lm, kf_id, lm_id))
             if pose_key(kf_id) not in self._keys:
-                self._insert_pose(m, kf_id, graph, values)
+                self._insert_pose(m, kf_id, values)
         if point_key(lm_id) not in self._keys:
             self._keys.add(point_key(lm_id))
             values.insert(point_key(lm_id), gtsam.Point3(*lm.point_world))
@@ -226,12 +249,15 @@ class SegmentGraph:
         Move the two-view landmarks of ``kf_ids`` left out of iSAM2 onto their poses as iSAM2
         just moved them (linear triangulation, all at once), so they stay consistent for PnP.
         """
-        lms = [m.landmarks[i] for i in _seen_by(m, kf_ids) if point_key(i) not in self._keys]
-        lms = [lm for lm in lms if len(lm.obs_px) == 2]
+        keys, landmarks = self._keys, m.landmarks
+        lms = [lm for lm in (landmarks[i] for i in _seen_by(m, kf_ids) if _L | i not in keys)
+               if len(lm.obs_px) == 2]
         if not lms:
             return
-        kfs = np.array([list(lm.obs_px) for lm in lms])  # (N, 2) keyframe ids
-        uv = np.array([list(lm.obs_px.values()) for lm in lms])  # (N, 2, 2) px
+        # (N, 2) keyframe ids and (N, 2, 2) px, flattened in one pass (no nested lists)
+        kfs = np.fromiter((k for lm in lms for k in lm.obs_px), np.int64, 2 * len(lms))
+        kfs = kfs.reshape(-1, 2)
+        uv = np.concatenate([x for lm in lms for x in lm.obs_px.values()]).reshape(-1, 2, 2)
         ks = np.unique(kfs)
         K = np.array(self._cal.K())
         P = np.array([K @ np.linalg.inv(m.keyframes[int(k)].T_world_cam)[:3] for k in ks])
@@ -240,9 +266,8 @@ class SegmentGraph:
         X = np.linalg.svd(A)[2][:, -1]  # DLT: the null vector of each landmark's 4x4 system
         with np.errstate(divide='ignore', invalid='ignore'):
             pts = X[:, :3] / X[:, 3:]
-        for lm, p in zip(lms, pts):
-            if np.all(np.isfinite(p)):
-                lm.point_world = p
+        for n in np.flatnonzero(np.all(np.isfinite(pts), axis=1)).tolist():
+            lms[n].point_world = pts[n]
 
     def batch(self, m: sfm_map.SfmMap, progress: Progress | None = None) -> int:
         """
