@@ -8,8 +8,9 @@ for each keyframe, the frame on ``/absscale/keyframes``, its vertices on
 alone decide) and its tracked motion from the previous keyframe on
 ``/absscale/keyframe_motion`` (TransformStamped, scale-free; see
 ``conversions.tracked_step_to_msg``), all with the same stamp. Every parameter of
-``KeyframeConfig`` is a ROS parameter. Each input message is acknowledged (``common.StepAck``); ``/diagnostics`` once
-a second: frames, keyframes, blurred, degenerate, tracking lost, time per frame.
+``KeyframeConfig`` is a ROS parameter. Each input message is acknowledged
+(``common.StepAck``); ``/diagnostics`` once a second: frames, keyframes, blurred, degenerate,
+tracking lost, time per frame.
 """
 from collections import Counter
 from dataclasses import fields
