@@ -22,9 +22,15 @@ SHADE_FLOOR = 32.0  # brightness floor of the shade-free colour test: dark colou
 
 def covered(image_bgr: npt.NDArray[np.uint8], corner: Array, inside: Array,
             cfg: 'SheetConfig') -> bool:
-    """Return True when something other than the sheet's colour lies on the hidden corner."""
+    """
+    Return True when something other than the sheet's colour lies on the hidden corner. A
+    corner beyond the image border is not hidden by anything seen (a board the border cuts:
+    a negative row once sliced the whole image column as its patch).
+    """
     h, w = image_bgr.shape[:2]
     u, v = int(round(corner[0])), int(round(corner[1]))
+    if not (0 <= u < w and 0 <= v < h):
+        return False
     patch = image_bgr[max(v - 2, 0):min(v + 3, h), max(u - 2, 0):min(u + 3, w)].reshape(-1, 3)
     if not len(patch):
         return False

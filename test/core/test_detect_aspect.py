@@ -52,3 +52,12 @@ def test_small_sheet_seen_edge_on_gets_a_wide_tolerance():
 def test_bad_aspect_floor_raises():
     with pytest.raises(ValueError):
         detect_sheet.SheetConfig(aspect_floor=0.2)
+
+
+def test_corner_beyond_the_image_border_is_not_covered():
+    img = np.full((100, 200, 3), 90, np.uint8)
+    img[40:, 80:] = 240  # the whole column below differs from the sheet's colour
+    inside = np.array([[90.0, 90.0, 90.0]] * 4)
+    assert sheet_checks.covered(img, np.array([100.0, 60.0]), inside, LETTER)
+    assert not sheet_checks.covered(img, np.array([100.0, -4.0]), inside, LETTER)
+    assert not sheet_checks.covered(img, np.array([203.0, 60.0]), inside, LETTER)
