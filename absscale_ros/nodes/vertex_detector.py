@@ -71,6 +71,7 @@ class VertexDetectorNode(Node):
         self._diag = common.DiagnosticsPublisher(self, 'detection')
         self._ack = common.StepAck(self)
         self._K: np.ndarray | None = None
+        self._dist: np.ndarray | None = None  # OpenCV-order coefficients (not fisheye)
         self._info_sub = self.create_subscription(CameraInfo, '/absscale/camera_info',
                                                   self._on_info, in_qos)
         self._frames_sub = self.create_subscription(Image, '/absscale/frames', self._on_frame,
@@ -81,7 +82,11 @@ class VertexDetectorNode(Node):
 
     def _on_info(self, msg: CameraInfo) -> None:
         try:
-            self._K = conversions.camera_info_to_model(msg).K
+            model = conversions.camera_info_to_model(msg)
+            # The sheet's aspect check undoes the lens: at the image border a barrel lens
+            # moved a 4:3 board to 1.6 % off letter. A fisheye model is not in OpenCV's order.
+            self._K, self._dist = model.K, (None if model.distortion_model == 'equidistant'
+                                            else model.dist)
         except errors.AbsScaleError as err:
             self.get_logger().warning(f'bad camera_info: {err}', throttle_duration_sec=5.0)
 
@@ -94,7 +99,7 @@ class VertexDetectorNode(Node):
         try:
             image = conversions.image_msg_to_bgr(msg)
             t0 = time.perf_counter()
-            result = detect.detect(image, self._cfg, self._K)
+            result = detect.detect(image, self._cfg, self._K, self._dist)
             self._times_ms.append(1e3 * (time.perf_counter() - t0))
             cloud = detect.vertices_array(result)
             self._vertices_pub.publish(
