@@ -29,6 +29,7 @@ from geometry_msgs.msg import PoseStamped, TransformStamped
 from nav_msgs.msg import Path
 import numpy as np
 import numpy.typing as npt
+from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2, PointField
 from std_msgs.msg import Float64MultiArray, Header, MultiArrayDimension
 
@@ -877,7 +878,6 @@ def tracked_step_to_msg(step: TrackedStep | None, stamp_ns: int) -> TransformSta
     depth (scale-free). An unknown step (first keyframe, after a tracking loss) has an empty
     ``header.frame_id``, so every keyframe still gets a message.
     """
-    from scipy.spatial.transform import Rotation
     msg = TransformStamped()
     _header(msg, stamp_ns, '' if step is None else _keyframe_frame(step.ref_stamp_ns))
     msg.child_frame_id = _keyframe_frame(stamp_ns)
@@ -897,7 +897,6 @@ def tracked_step_from_msg(msg: Any) -> TrackedStep | None:
     :raises errors.MessageError: on a frame name that is not ``keyframe_<ns>``, or a
         non-finite translation or rotation.
     """
-    from scipy.spatial.transform import Rotation
     parent = msg.header.frame_id
     if not parent:
         return None

@@ -20,9 +20,9 @@ from typing import Any
 from absscale_ros import conversions
 from absscale_ros.core import detect, errors, keyframe_geometry, keyframes, pairing
 from absscale_ros.nodes import common
+from geometry_msgs.msg import TransformStamped
 import numpy as np
 from rclpy.node import Node
-from geometry_msgs.msg import TransformStamped
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 
