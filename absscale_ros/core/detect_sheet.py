@@ -173,16 +173,19 @@ def refine_quad(image_bgr: npt.NDArray[np.uint8], quad_px: Array, coarse_band_px
     return _refine_quads(image_bgr, [quad_px], coarse_band_px)[0]
 
 
-def _refine_quads(image_bgr: npt.NDArray[np.uint8], quads_px: list[Array], coarse_band_px: float
+def _refine_quads(image_bgr: npt.NDArray[np.uint8], quads_px: list[Array], coarse_band_px: float,
+                  bands: tuple[float, ...] | None = None, blurred: bool = False
                   ) -> list[sides.Refined | None]:
-    """``refine_quad`` of several quadrilaterals, in one ``sides.refine`` call per pass."""
+    """``refine_quad`` of several quadrilaterals, in one ``sides.refine`` call per pass
+    (``bands``: instead of the coarse band and ``FINE_BANDS``; ``blurred``: see
+    ``sides.refine``)."""
     ends = [np.stack([q, np.roll(q, -1, axis=0)], axis=1) for q in quads_px]
     rough = [np.array([lines.line_through(p0, p1, q.mean(axis=0)) for p0, p1 in e])
              for q, e in zip(quads_px, ends)]
     ns = [int(np.clip(np.linalg.norm(e[:, 1] - e[:, 0], axis=1).mean() / 4.0, 16, 64))
           for e in ends]
-    outs = sides.refine_many(image_bgr, rough, ends, (coarse_band_px,) + FINE_BANDS, ns,
-                             FIRST_PASS_SUPPORT)
+    outs = sides.refine_many(image_bgr, rough, ends, bands or (coarse_band_px,) + FINE_BANDS,
+                             ns, FIRST_PASS_SUPPORT, blurred=blurred)
     return [None if o is None else _quad_from_sides(q, o, coarse_band_px)
             for q, o in zip(quads_px, outs)]
 
@@ -347,12 +350,7 @@ def _accept_blurred(image_bgr: npt.NDArray[np.uint8], quads_full: list[Array], b
     for quad in quads_full[:BLUR_MAX_QUADS]:
         side = float(np.linalg.norm(quad - np.roll(quad, -1, axis=0), axis=1).min())
         wide = max(band, cfg.blur_band_frac * side)
-        ends = np.stack([quad, np.roll(quad, -1, axis=0)], axis=1)
-        rough = np.array([lines.line_through(p0, p1, quad.mean(axis=0)) for p0, p1 in ends])
-        n = int(np.clip(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1).mean() / 4.0, 16, 64))
-        out = sides.refine_many(image_bgr, [rough], [ends], (wide, 0.5 * wide), [n],
-                                FIRST_PASS_SUPPORT, blurred=True)[0]
-        refined = None if out is None else _quad_from_sides(quad, out, wide)
+        refined = _refine_quads(image_bgr, [quad], wide, (wide, 0.5 * wide), blurred=True)[0]
         if refined is None or not sheet_checks.big_enough(refined[0], image_bgr.shape, cfg):
             continue
         ls = np.array([lines.line_through(a, b, refined[0].mean(axis=0))

@@ -118,10 +118,12 @@ class SegmentGraph:
         since = keyframes - self._last_batch_size
         return since >= max(self._cfg.batch_every, self._cfg.batch_growth * self._last_batch_size)
 
+    def _noise_of(self, lm: sfm_map.Landmark) -> gtsam.noiseModel.Base:
+        return self._vertex_noise if lm.label is not None else self._noise
+
     def _factor(self, lm: sfm_map.Landmark, kf_id: int, lm_id: int) -> gtsam.NonlinearFactor:
-        noise = self._vertex_noise if lm.label is not None else self._noise
         return gtsam.GenericProjectionFactorCal3_S2(
-            lm.obs_px[kf_id], noise, pose_key(kf_id), point_key(lm_id), self._cal)
+            lm.obs_px[kf_id], self._noise_of(lm), pose_key(kf_id), point_key(lm_id), self._cal)
 
     def _held_factor(self, m: sfm_map.SfmMap, lm: sfm_map.Landmark, kf_id: int,
                      lm_id: int) -> gtsam.NonlinearFactor:
@@ -134,8 +136,8 @@ class SegmentGraph:
         if cam is None:
             cam = self._held_cams[kf_id] = gtsam.PinholeCameraCal3_S2(
                 gtsam.Pose3(m.keyframes[kf_id].T_world_cam), self._cal)
-        noise = self._vertex_noise if lm.label is not None else self._noise
-        return gtsam.TriangulationFactorCal3_S2(cam, lm.obs_px[kf_id], noise, point_key(lm_id))
+        return gtsam.TriangulationFactorCal3_S2(cam, lm.obs_px[kf_id], self._noise_of(lm),
+                                                point_key(lm_id))
 
     def _insert_pose(self, m: sfm_map.SfmMap, kf_id: int, values: gtsam.Values) -> None:
         self._keys.add(pose_key(kf_id))
