@@ -317,11 +317,16 @@ def _progress_from_diagnostics(diagnostics: dict[str, dict[str, Any]]
 
 def _latency(published_at: dict[int, int], updates: list[tuple[int, int]]) -> dict[str, Any]:
     """Seconds from a frame's publication to the /scaled_cloud update stamped with it."""
-    lat = [(t - published_at[stamp]) / 1e9 for stamp, t in updates if stamp in published_at]
-    if not lat:
+    seen = [(stamp, (t - published_at[stamp]) / 1e9) for stamp, t in updates
+            if stamp in published_at]
+    if not seen:
         return {'updates': 0}
+    lat = [s for _, s in seen]
+    first = min(published_at.values())
+    # (seconds into the replay the frame was published, its latency): where a backlog grows.
+    series = [[round((published_at[stamp] - first) / 1e9, 3), round(s, 3)] for stamp, s in seen]
     return {'updates': len(lat), 'median': float(np.median(lat)),
-            'p95': float(np.percentile(lat, 95)), 'max': float(np.max(lat))}
+            'p95': float(np.percentile(lat, 95)), 'max': float(np.max(lat)), 'series': series}
 
 
 def _frames_not_processed(frames: int, node_reports: dict[str, Any]) -> dict[str, Any]:

@@ -19,3 +19,13 @@ def test_progress_reads_keyframes_and_a_claimed_scale_from_diagnostics() -> None
                                                       'sigma': 0.002, 'edges': 6})
     keyframes, scale = graph._progress_from_diagnostics(_summary(selector, claimed))
     assert keyframes == 7 and scale == (0.68, 0.002)
+
+
+def test_latency_is_timed_from_each_frames_publication_and_kept_as_a_series() -> None:
+    published = {10: 1_000_000_000, 20: 2_000_000_000, 30: 3_000_000_000}
+    # Cloud updates stamped with frames 10 and 30 (1.5 s and 0.5 s after them); 99 unknown.
+    updates = [(10, 2_500_000_000), (30, 3_500_000_000), (99, 4_000_000_000)]
+    lat = graph._latency(published, updates)
+    assert lat['updates'] == 2 and lat['max'] == 1.5 and lat['median'] == 1.0
+    assert lat['series'] == [[0.0, 1.5], [2.0, 0.5]]  # seconds into the replay, latency
+    assert graph._latency(published, []) == {'updates': 0}
