@@ -204,8 +204,12 @@ class IncrementalSfm:
 
     def _try_initialise(self, seg: Segment, kf: sfm_map.MapKeyframe) -> tuple[str, str]:
         reason = 'first keyframe of the segment'
+        # One index of kf for all pending keyframes (its build reseeds cv2's RNG to 0, and
+        # ``twoview.initialise`` seeds its own: the same matches and pairs as one per pair).
+        kf_index = feat.Index(kf.features.descriptors, self.cfg.feature_cfg) \
+            if seg.pending else None
         for first in seg.pending:
-            pairs = self._verified(first.features, kf.features)
+            pairs = self._verified(first.features, kf.features, None, kf_index)
             try:
                 T_b, pts, ok = twoview.initialise(
                     self.K, first.features.points_px[pairs[:, 0]],

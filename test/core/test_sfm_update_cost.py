@@ -10,10 +10,12 @@ from dataclasses import replace
 from pathlib import Path
 import sys
 
+import cv2
 import numpy as np
 import pytest
 
 from absscale_ros.core import align, local_map, sfm, sfm_graph
+from absscale_ros.core import features as feat
 
 sys.path.insert(0, str(Path(__file__).parent))
 import sfm_scenes  # noqa: E402
@@ -70,3 +72,31 @@ def test_subset_residuals_are_the_full_ones_restricted(orbit) -> None:
     assert all(part[x] == pytest.approx(full[x]) for x in part)
     errs = np.array(list(full.values()))
     assert m.reprojection_rms_px(K, subset) == pytest.approx(np.sqrt(np.mean(errs**2)))
+
+
+def test_pending_keyframes_share_one_index(monkeypatch) -> None:
+    # A pan from one spot never initialises, so every keyframe is tried against all pending
+    # ones: one FLANN index of the new keyframe serves them all (it was built once per pair,
+    # 300-450 ms a pending keyframe), and the matches are those of an index per pair.
+    seq = sfm_scenes.make_sequence('outdoor_cube', 2, count=5, arc_deg=30.0, rotate_only=True)
+    built = []
+
+    class Counting(feat.Index):
+        def __init__(self, *args, **kwargs) -> None:
+            built.append(1)
+            super().__init__(*args, **kwargs)
+
+    monkeypatch.setattr(feat, 'Index', Counting)
+    engine = sfm.IncrementalSfm(seq.camera, sfm.SfmConfig(), np.random.default_rng(7))
+    for k, img in enumerate(seq.images_bgr):
+        before = len(built)
+        assert engine.add_keyframe(k, img).status == 'pending'
+        assert len(built) - before == (1 if k else 0)  # was k (one per pending keyframe)
+    cfg = engine.cfg.feature_cfg
+    pending = [kf.features for kf in engine.current.pending]
+    newest = pending[-1]
+    shared = feat.Index(newest.descriptors, cfg)
+    for f in pending[:-1]:
+        cv2.setRNGSeed(12345)  # what ran in between does not matter: the build reseeds
+        own = feat.match(f, newest, cfg)
+        assert len(own) > 50 and np.array_equal(own, feat.match(f, newest, cfg, None, shared))
