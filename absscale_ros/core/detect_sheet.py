@@ -31,6 +31,7 @@ BLUR_MAX_QUADS = 2  # rough quadrilaterals retried as a blurred sheet, per frame
 BLUR_MIN_RAMP_PX = 4.0  # a blurred sheet's most smeared side ramps over more (25-75 %)
 BLUR_RAMP_PX = 8.0  # a ramp this wide (25-75 %) doubles the corner noise the aspect allows
 BLUR_ASPECT_CAP = 2.0  # times ``aspect_tol``: the largest aspect tolerance of a blurred sheet
+LINE_SEGMENTS = 40  # segment lines added to the Hough peaks of the line hypotheses (``quads``)
 STUB_MAX_HYPS = 8  # stub hypotheses refined per frame at most (whitest, longest sides first)
 
 
@@ -78,6 +79,10 @@ class SheetConfig:
     :param max_shade: the inside (and outside) colours of the four sides may differ in
         brightness up to this factor when their hues agree: a shadow across the sheet and
         its surface (``sheet_checks.one_colour``; 1.0 turns it off).
+    :param min_inside_ratio: smallest brightness (brightest channel) just inside every side
+        over just outside it: paper is not darker than the surface it lies on (true sides of
+        real and rendered pages: 0.92 or more). A side on the far edge of a dark band beyond the
+        page passed the shade-tolerant colour test at 0.45.
     :param rough_aspect_tol: the aspect test on rough mask corners, before refinement (wide:
         a small sheet seen obliquely has rough corners a few px off on 40 px sides).
     :param max_ridges: most sides whose colour recovers beyond a thin dark line
@@ -117,6 +122,7 @@ class SheetConfig:
     max_saturation: float = 0.35
     max_outside_spread: float = 0.5
     max_shade: float = 2.5
+    min_inside_ratio: float = 0.75
     rough_aspect_tol: float = 0.8
     max_ridges: int = 1
     ridge_ratio: float = 0.3
@@ -263,7 +269,8 @@ def _line_candidates(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig
                       interpolation=cv2.INTER_AREA)
     aspect = max(m.aspect for m in cfg.models())
     min_side = np.sqrt(cfg.min_area_frac * work.shape[0] * work.shape[1] / aspect)
-    hyps, _ = quads.find_quads(work, quads.QuadConfig(min_side_px=float(min_side)))
+    hyps, _ = quads.find_quads(work, quads.QuadConfig(min_side_px=float(min_side),
+                                                      segment_lines=LINE_SEGMENTS))
     kept: list[Array] = []
     for quad in hyps:  # best supported first
         # Rough corners: a looser test here, the exact one after refinement.

@@ -55,6 +55,8 @@ def passes(image_bgr: npt.NDArray[np.uint8], refined: sides.Refined, cfg: 'Sheet
     corners, supports, steps, inside, outside = refined
     if supports.min() < cfg.min_support or steps.min() < cfg.min_contrast:
         return False  # not a sheet on a different surface all round
+    if (inside.max(axis=1) < cfg.min_inside_ratio * outside.max(axis=1)).any():
+        return False  # darker than its surface at a side: that side is some other edge
     if not one_colour(inside, cfg.max_inside_spread, cfg.max_saturation, cfg.max_shade):
         return False  # four edges of different things (a table top, its legs, the floor)
     if not one_colour(outside, cfg.max_outside_spread, 1.0, cfg.max_shade):
