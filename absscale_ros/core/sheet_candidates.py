@@ -35,6 +35,8 @@ RING_STEP = 3  # every third ring pixel is enough for its median
 RING_CONTRAST = 2.0  # of ``min_contrast``; sheets in the simulator show 4x or more
 PENT_MIN_SOLIDITY = 0.75  # a region with a corner cut off by an occluder's notch is less convex
 FREE_INSET_PX = 2.0  # a 3x3-dilated Canny line keeps edge-free regions this far inside
+COLOUR_SEEDS = 3  # whitest regions whose own colour is looked for again (``colour_quads``)
+COLOUR_TOLS = (12, 20, 30)  # largest channel difference from that colour, 0-255
 
 
 def shrink(image: npt.NDArray[np.uint8], scale: float,
@@ -150,6 +152,33 @@ def candidates(work_bgr: npt.NDArray[np.uint8], cfg: 'SheetConfig'
                 quads.append(quad)
     order = np.argsort(-np.array(whites), kind='stable')
     return quads, [regions[i] for i in order]  # whitest first: where a sheet is likeliest
+
+
+def colour_quads(work_bgr: npt.NDArray[np.uint8], regions: list[Region], cfg: 'SheetConfig'
+                 ) -> list[Array]:
+    """
+    Return rough (4, 2) quadrilaterals, work px, of the regions of one colour: the median
+    colour of each of the ``COLOUR_SEEDS`` whitest regions, within each of ``COLOUR_TOLS``.
+    On a textured or cluttered desk a page joins bright patches around it in every whiteness
+    mask; those are rarely its own tint as well.
+    """
+    min_area = ROUGH_AREA_SLACK * cfg.min_area_frac * work_bgr.shape[0] * work_bgr.shape[1]
+    quads: list[Array] = []
+    for contour, _ in regions[:COLOUR_SEEDS]:
+        seed = np.zeros(work_bgr.shape[:2], np.uint8)
+        cv2.drawContours(seed, [contour], 0, 1, -1)
+        colour = np.median(work_bgr[seed > 0], axis=0).astype(np.int16)
+        diff = np.abs(work_bgr.astype(np.int16) - colour).max(axis=2)
+        for tol in COLOUR_TOLS:
+            mask = _clean((diff <= tol).astype(np.uint8))
+            for c in cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)[0]:
+                if region_shape(c, min_area, cfg) < cfg.min_solidity:
+                    continue
+                quad = lines.rough_quad(c)
+                if quad is not None and not touches_border(quad, work_bgr.shape) and \
+                        all(np.abs(quad - q).max() > 2.0 for q in quads):
+                    quads.append(quad)
+    return quads
 
 
 def pentagons(regions: list[Region]) -> list[Array]:
