@@ -61,3 +61,12 @@ def forward_walk(count: int = 5, seed: int = 3) -> tuple:
     step = STEP_M * (np.cos(np.radians(20)) * ahead + np.sin(np.radians(20)) * side
                      / np.linalg.norm(side))
     return _rendered([_look_at(start + k * step, target) for k in range(count)], seed)
+
+
+@functools.lru_cache(maxsize=1)
+def grazing_keyframes(count: int = 5, seed: int = 3) -> tuple:
+    """``count`` keyframes 0.35 m above the table, looking across it (60 degrees slant)."""
+    target = _target(seed)
+    start = target + np.array([-0.2, -0.7, 0.35])
+    return _rendered([_look_at(start + [0.08 * k, 0.0, 0.0], target + [0.0, -0.1, 0.0])
+                      for k in range(count)], seed)

@@ -227,12 +227,30 @@ class DenseFusion:
                 f.view = dense_sweep.pinhole_view(f.image, f.camera, self.sweep)
         colour, grey, K = frames[0].view
         near, far = self._depth_range(stamps, i, guess)
+        plane = dense_sweep.dominant_plane(self._nearby_points(stamps, i), self.sweep) \
+            if self.sweep.plane else None
         depth = dense_sweep.sweep(grey, [(f.view[1], T) for f, (_, T) in zip(frames[1:], views)],
-                                  K, near, far, self.sweep)
+                                  K, near, far, self.sweep, plane)
         centres = [-T[:3, :3].T @ T[:3, 3] for _, T in views]
         depth[~dense_sweep.precise(depth, K, centres, self.sweep.max_depth_baselines,
                                    self.sweep.max_step_m)] = 0.0
         return dense_stereo.DepthMap(depth, colour, K, np.eye(3), -1, np.eye(4))
+
+    def _nearby_points(self, stamps: list[int], i: int, stride: int = 8) -> FloatArray:
+        """A thinned sample of the depth maps of keyframe ``i`` and its neighbours, in its
+        camera frame (where a dominant plane is looked for)."""
+        kf, out = self._frames[stamps[i]], []
+        for s in stamps[max(0, i - self.sweep.span):i + self.sweep.span + 1]:
+            other = self._frames[s]
+            T = dense_stereo.relative_pose(other.pose, kf.pose)  # other camera -> kf camera
+            for m in other.depths.values():
+                v, u = np.nonzero(m.depth[::stride, ::stride] > 0)
+                v, u = v * stride, u * stride
+                z = m.depth[v, u].astype(np.float64)
+                K = m.K_rect
+                rect = np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], 1)
+                out.append(rect @ m.R_rect @ T[:3, :3].T + T[:3, 3])
+        return np.concatenate(out) if out else np.zeros((0, 3))
 
     def _depth_range(self, stamps: list[int], i: int, guess: float) -> tuple[float, float]:
         """Depths to sweep: what the depth maps of nearby keyframes hold, widened."""

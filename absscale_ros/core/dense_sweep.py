@@ -42,6 +42,12 @@ class SweepConfig:
     max_depth_baselines: float = 15.0  # deeper than this many baselines across the ray: dropped
     max_step_m: float = 0.0  # range change per pixel of parallax larger than this: dropped
     max_angle_deg: float = 40.0  # neighbours looking further away are not used, degrees
+    plane: bool = True  # also sweep planes parallel to the nearby points' dominant plane
+    plane_band: float = 0.1  # ... offsets within this fraction of the plane's own
+    plane_tolerance: float = 0.01  # RANSAC inlier distance, fraction of the points' range
+    plane_trials: int = 100  # RANSAC samples
+    plane_min_share: float = 0.2  # fewer points on the best plane: no slanted sweep
+    plane_min_slant_deg: float = 20.0  # a plane facing the camera closer than this: none
 
     def __post_init__(self) -> None:
         if not 0.0 < self.scale <= 1.0 or self.views < 1 or self.window_px < 3 or \
@@ -68,33 +74,71 @@ def pinhole_view(image_bgr: np.ndarray, camera: CameraModel,
 
 
 def sweep(ref: Image32, others: list[tuple[Image32, FloatArray]], K: FloatArray,
-          near_m: float, far_m: float, cfg: SweepConfig) -> Image32:
+          near_m: float, far_m: float, cfg: SweepConfig,
+          plane: tuple[FloatArray, float] | None = None) -> Image32:
     """
     Depth of ``ref`` by a plane sweep over ``others``.
 
     :param others: (grey image, T_other_ref 4x4: reference camera points into the other's).
     :param near_m: nearest and farthest depth swept, m (z in the reference camera).
+    :param plane: (unit normal n, offset d > 0) of a dominant plane ``n . X = d`` in the
+        reference camera (``dominant_plane``): planes parallel to it are swept too, around
+        it, and each pixel keeps whichever family matches it better. A fronto-parallel window
+        on a surface seen at a grazing angle (the ground ahead) spans many depths and
+        matches poorly; the same window slanted with the surface does not.
     :returns: (h, w) z in the reference camera, m; 0 where no depth is trusted.
     """
     h, w = ref.shape
     win = (cfg.window_px, cfg.window_px)
     mu_r = cv2.boxFilter(ref, -1, win)
     sd_r = np.sqrt(np.maximum(cv2.boxFilter(ref * ref, -1, win) - mu_r * mu_r, 0.0))
-    sd_r_eps = sd_r + np.float32(1e-2)
-    widest = max(float(np.linalg.norm(T[:3, 3])) for _, T in others)
-    count = int(np.ceil((1.0 / near_m - 1.0 / far_m) * K[0, 0] * widest / cfg.plane_step_px))
-    inv = np.linspace(1.0 / near_m, 1.0 / far_m, int(np.clip(count, 8, cfg.max_planes)))
+    stats = (mu_r, sd_r + np.float32(1e-2))
     K_inv = np.linalg.inv(K)
+    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    widest = max(float(np.linalg.norm(T[:3, 3])) for _, T in others)
+    # Fronto-parallel planes z = d spaced in inverse depth (n . ray = 1 for every pixel).
+    front = np.array([0.0, 0.0, 1.0])
+    count = (1.0 / near_m - 1.0 / far_m) * K[0, 0] * widest / cfg.plane_step_px
+    inv = np.linspace(1.0 / near_m, 1.0 / far_m, int(np.clip(np.ceil(count), 8, cfg.max_planes)))
+    cost, inv_depth = _family(ref, stats, others, K, K_inv, front, inv, cfg)
+    if plane is not None:
+        n, d = plane
+        # n . ray for each pixel (ray with z = 1): 1 / z = (n . ray) / d on a plane n . X = d.
+        along = (n[0] * (u - K[0, 2]) / K[0, 0] + n[1] * (v - K[1, 2]) / K[1, 1] + n[2])
+        shift = K[0, 0] * widest * max(float(np.percentile(along, 99)), 1e-3)
+        lo, hi = 1.0 / (d * (1.0 + cfg.plane_band)), 1.0 / (d * (1.0 - cfg.plane_band))
+        count = (hi - lo) * shift / cfg.plane_step_px
+        offsets = np.linspace(hi, lo, int(np.clip(np.ceil(count), 8, cfg.max_planes)))
+        cost_p, inv_p = _family(ref, stats, others, K, K_inv, n, offsets, cfg)
+        inv_p *= along.astype(np.float32)
+        better = (cost_p < cost) & (inv_p > 0)
+        cost, inv_depth = np.where(better, cost_p, cost), np.where(better, inv_p, inv_depth)
+    ok = (cost <= 1.0 - cfg.min_ncc) & (sd_r >= cfg.min_texture) & (inv_depth > 0)
+    return np.where(ok, 1.0 / np.maximum(inv_depth, 1e-9), 0.0).astype(np.float32)
+
+
+def _family(ref: Image32, stats: tuple[Image32, Image32], others: list[tuple[Image32, FloatArray]],
+            K: FloatArray, K_inv: FloatArray, normal: FloatArray, offsets: FloatArray,
+            cfg: SweepConfig) -> tuple[Image32, Image32]:
+    """
+    Sweep of the planes ``normal . X = 1 / s`` for ``s`` in ``offsets`` (evenly spaced).
+
+    :returns: each pixel's best cost (inf where its best plane is the first or last: no
+        minimum inside the range) and its sub-plane ``s``, refined by a parabola.
+    """
+    h, w = ref.shape
+    win = (cfg.window_px, cfg.window_px)
+    mu_r, sd_r_eps = stats
     floor = np.float32(1.0 - cfg.truncate)  # a neighbour's correlation counts at least this
     best = np.full((h, w), np.inf, np.float32)
     index = np.zeros((h, w), np.int32)
     left, right, previous = best.copy(), best.copy(), best.copy()
     tmp, cost = np.empty_like(best), np.empty_like(best)
-    for k, inv_d in enumerate(inv):
+    for k, s in enumerate(offsets):
         score = np.zeros((h, w), np.float32)
         for img, T in others:
-            # x_other ~ K (R + t n^T / d) K^-1 x_ref for the plane z = d, n = (0, 0, 1)
-            H = K @ (T[:3, :3] + np.outer(T[:3, 3], [0.0, 0.0, inv_d])) @ K_inv
+            # x_other ~ K (R + t n^T / d) K^-1 x_ref for the plane n . X = d
+            H = K @ (T[:3, :3] + np.outer(T[:3, 3], normal * s)) @ K_inv
             warped = cv2.warpPerspective(img, H, (w, h), flags=cv2.INTER_LINEAR
                                          | cv2.WARP_INVERSE_MAP, borderValue=0.0)
             mu_w = cv2.boxFilter(warped, -1, win)
@@ -117,9 +161,39 @@ def sweep(ref: Image32, others: list[tuple[Image32, FloatArray]], K: FloatArray,
     curve = left - 2.0 * best + right
     ok = np.isfinite(curve) & (curve > 1e-6)
     offset = np.where(ok, 0.5 * (left - right) / np.where(ok, curve, 1.0), 0.0)
-    inv_depth = inv[index] + np.clip(offset, -0.5, 0.5) * (inv[1] - inv[0])
-    ok &= (best <= 1.0 - cfg.min_ncc) & (sd_r >= cfg.min_texture) & (inv_depth > 0)
-    return np.where(ok, 1.0 / np.maximum(inv_depth, 1e-9), 0.0).astype(np.float32)
+    refined = offsets[index] + np.clip(offset, -0.5, 0.5) * (offsets[1] - offsets[0])
+    return np.where(ok, best, np.inf).astype(np.float32), refined.astype(np.float32)
+
+
+def dominant_plane(points: FloatArray, cfg: SweepConfig,
+                   seed: int = 0) -> tuple[FloatArray, float] | None:
+    """
+    The plane most points of ``points`` (reference camera, m) lie on, by RANSAC, as (unit
+    normal n, offset d > 0) with ``n . X = d``; None when too few points lie on any plane
+    or when it already faces the camera (the fronto-parallel sweep covers it).
+    """
+    if len(points) < 50:
+        return None
+    rng = np.random.default_rng(seed)
+    tolerance = cfg.plane_tolerance * np.median(np.linalg.norm(points, axis=1))
+    best, best_in = None, np.zeros(len(points), bool)
+    for a, b, c in rng.integers(0, len(points), (cfg.plane_trials, 3)):
+        n = np.cross(points[b] - points[a], points[c] - points[a])
+        if np.linalg.norm(n) < 1e-12:
+            continue
+        inside = np.abs((points - points[a]) @ (n / np.linalg.norm(n))) <= tolerance
+        if inside.sum() > best_in.sum():
+            best, best_in = n, inside
+    if best is None or best_in.sum() < cfg.plane_min_share * len(points):
+        return None
+    inliers = points[best_in]
+    centre = inliers.mean(0)  # least-squares refit on the inliers
+    n = np.linalg.svd(inliers - centre, full_matrices=False)[2][2]
+    d = float(n @ centre)
+    n, d = (n, d) if d > 0 else (-n, -d)
+    if d < 1e-6 or abs(n[2]) > np.cos(np.radians(cfg.plane_min_slant_deg)):
+        return None
+    return n, d
 
 
 def precise(depth: Image32, K: FloatArray, centres: list[FloatArray], max_baselines: float,
