@@ -232,9 +232,10 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
     unfound = _accept_quads(image_bgr, [(q + 0.5) / scale - 0.5 for q in quads_], band, cfg,
                             K, found, dist)
     if not found and cfg.line_candidates:
-        _accept_quads(image_bgr, [(q + 0.5) / scale - 0.5 for q in
-                                  sheet_candidates.colour_quads(work, regions, cfg)],
-                      band, cfg, K, found, dist)
+        more = sheet_candidates.colour_quads(work, regions, cfg) + \
+            sheet_candidates.detached_quads(work, cfg)
+        _accept_quads(image_bgr, [(q + 0.5) / scale - 0.5 for q in more], band, cfg, K, found,
+                      dist)
     if not found and cfg.line_candidates:
         line_quads = _line_candidates(image_bgr, cfg)
         if line_quads:

@@ -37,6 +37,7 @@ PENT_MIN_SOLIDITY = 0.75  # a region with a corner cut off by an occluder's notc
 FREE_INSET_PX = 2.0  # a 3x3-dilated Canny line keeps edge-free regions this far inside
 COLOUR_SEEDS = 3  # whitest regions whose own colour is looked for again (``colour_quads``)
 COLOUR_TOLS = (12, 20, 30)  # largest channel difference from that colour, 0-255
+DETACH_PX = 9  # diameter of the opening that cuts bright blobs off a page (``detached_quads``)
 
 
 def shrink(image: npt.NDArray[np.uint8], scale: float,
@@ -178,6 +179,29 @@ def colour_quads(work_bgr: npt.NDArray[np.uint8], regions: list[Region], cfg: 'S
                 if quad is not None and not touches_border(quad, work_bgr.shape) and \
                         all(np.abs(quad - q).max() > 2.0 for q in quads):
                     quads.append(quad)
+    return quads
+
+
+def detached_quads(work_bgr: npt.NDArray[np.uint8], cfg: 'SheetConfig') -> list[Array]:
+    """
+    Return rough (4, 2) quadrilaterals, work px, of the candidate masks opened by a disc of
+    ``DETACH_PX``: bright texture touching a page (wood grain, a magazine) joins it through
+    necks a few pixels wide that the 3x3 opening keeps. A page's rough corners survive: they
+    are fitted to its straight sides, not taken from the rounded outline.
+    """
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (DETACH_PX, DETACH_PX))
+    min_area = ROUGH_AREA_SLACK * cfg.min_area_frac * work_bgr.shape[0] * work_bgr.shape[1]
+    quads: list[Array] = []
+    for mask in masks(work_bgr, whiteness(work_bgr), cfg):
+        opened = cv2.morphologyEx(mask, cv2.MORPH_OPEN, disc)
+        for c in cv2.findContours(opened, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)[0]:
+            if region_shape(c, min_area, cfg) < cfg.min_solidity:
+                continue
+            quad = lines.rough_quad(c)
+            if quad is not None and not touches_border(quad, work_bgr.shape) and \
+                    all(np.abs(quad - q).max() > 2.0 for q in quads) and \
+                    plausible(work_bgr, c, cfg) is not None:
+                quads.append(quad)
     return quads
 
 

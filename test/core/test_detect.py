@@ -329,8 +329,8 @@ def test_real_smartdoc_variants_on_textured_desks():
     """
     SmartDoc pages re-photographed (``make_variants.py``): a camera rotation, desk texture
     touching the page, blur, JPEG. Each page is found to 0.5 % of its edge (the whiteness
-    masks join it to bright texture: the page's own colour and LSD lines find it), and the
-    one beside a dark band is not stretched over the band.
+    masks join it to bright texture: its own colour, masks opened to cut the texture off, LSD
+    lines find it), and the one beside a dark band is not stretched over the band.
     """
     with open(VARIANTS / 'gt.json') as f:
         gts = json.load(f)
