@@ -1,8 +1,9 @@
 """
 Target detection front end: which detectors to run, and one result per frame.
 
-``target`` selects a sheet ('letter', 'a4', 'custom'), the cube, or 'auto' (every sheet size
-configured plus the cube), so one frame can report several targets of several kinds.
+``target`` selects a sheet ('letter', 'a4', 'custom'), any configured sheet size ('sheet': a
+user's page may be letter or A4), the cube, or 'auto' (every sheet size configured plus the
+cube), so one frame can report several targets of several kinds.
 """
 from dataclasses import dataclass, field, replace
 
@@ -12,7 +13,7 @@ import numpy.typing as npt
 
 from absscale_ros.core import detect_cube, detect_sheet, targets
 
-TARGET_CHOICES = ('letter', 'a4', 'custom', 'cube', 'auto')
+TARGET_CHOICES = ('letter', 'a4', 'custom', 'sheet', 'cube', 'auto')
 
 
 @dataclass(frozen=True)
@@ -21,8 +22,8 @@ class DetectConfig:
     What to look for.
 
     :param target: one of ``TARGET_CHOICES``.
-    :param auto_sheets: sheet names tried in 'auto' mode, in one search (each detection is
-        named after the size its aspect fits best: A4 and letter differ by 9 %).
+    :param auto_sheets: sheet names tried in 'sheet' and 'auto' modes, in one search (each
+        detection is named after the size its aspect fits best: A4 and letter differ by 9 %).
     :param sheet: the sheet detector's thresholds (its ``sheet`` field is set from ``target``).
     :param cube: the cube detector's thresholds.
     """
@@ -42,7 +43,7 @@ class DetectConfig:
         """Return the sheet detector configurations this target setting runs."""
         if self.target == 'cube':
             return []
-        if self.target == 'auto':
+        if self.target in ('sheet', 'auto'):
             if not self.auto_sheets:
                 return []
             return [replace(self.sheet, sheet=self.auto_sheets[0],
