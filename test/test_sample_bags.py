@@ -1,7 +1,7 @@
 """The shipped outdoor sample end to end: a true scale in its own interval, twice the same."""
 from pathlib import Path
 
-from absscale_ros import graph
+from absscale_ros import graph, params
 from absscale_ros.sim import groundtruth
 from absscale_ros.tools import bench_scale
 from rclpy.serialization import deserialize_message
@@ -28,3 +28,14 @@ def test_outdoor_sample_scale_is_true_and_repeatable() -> None:
     second, latest2 = _run()  # offline runs are deterministic: same bytes, same factor
     assert second['nodes']['scale']['factor'] == scale['factor']
     assert latest2['/scaled_cloud'][1] == latest['/scaled_cloud'][1]
+
+
+def test_scale_bench_configures_the_page_the_bag_holds(tmp_path: Path) -> None:
+    """An A4 bag is benched looking for A4 (its user would configure it), a letter bag as is."""
+    gt = groundtruth.load(f'{BAG}.gt.json')
+    assert bench_scale._scene_config(gt, tmp_path).endswith('config/outdoor_cube.yaml')
+    gt['scene'] = {'name': 'indoor_paper', 'variant': {'target': 'a4'}}
+    path = bench_scale._scene_config(gt, tmp_path)
+    sections = params.load_yaml(Path(path))
+    assert sections['vertex_detector']['target'] == 'a4'
+    assert sections['scale'] == params.load_yaml(params.find_config('indoor_paper'))['scale']
