@@ -120,9 +120,16 @@ class IncrementalSfm:
     def current(self) -> Segment:
         return self.segments[-1]
 
+    def detect(self, image_bgr: npt.NDArray[np.uint8]) -> feat.Features:
+        """The features ``add_keyframe`` would detect in ``image_bgr`` (no state touched: a
+        worker thread may run it ahead while the previous keyframe is processed; OpenCV
+        releases the GIL)."""
+        return feat.detect(image_bgr, self.camera, self.cfg.feature_cfg)
+
     def add_keyframe(self, stamp_ns: int, image_bgr: npt.NDArray[np.uint8],
                      vertices: vm.Vertices | None = None,
-                     step: keyframes.TrackedStep | None = None) -> UpdateResult:
+                     step: keyframes.TrackedStep | None = None,
+                     features: feat.Features | None = None) -> UpdateResult:
         """
         Process one keyframe; see ``UpdateResult``.
 
@@ -130,12 +137,13 @@ class IncrementalSfm:
         :param vertices: its detected target vertices, ``points_px`` distorted (as detected).
         :param step: its motion from the previous keyframe as the keyframe selector tracked it
             (None: unknown); a pose that disagrees with it is refused.
+        :param features: ``detect(image_bgr)`` if already computed (None: detected here).
         """
         if step is not None:
             self._steps[stamp_ns] = step
             while len(self._steps) > self.cfg.max_failures + 2:  # enough to bridge drops
                 del self._steps[min(self._steps)]
-        f = feat.detect(image_bgr, self.camera, self.cfg.feature_cfg)
+        f = self.detect(image_bgr) if features is None else features
         kf = sfm_map.MapKeyframe(self._next_kf, stamp_ns, np.eye(4), f,
                                  np.full(len(f.points_px), -1, np.int64))
         if vertices is not None and len(vertices.object_ids):

@@ -8,10 +8,13 @@ tracked step, against which a registration is checked), paired by stamp, and
 worth scaling (``core/sfm_outputs.best_segment``): ``/absscale/sparse_cloud`` (x y z rgb, SfM
 units), ``/absscale/keyframe_path`` (nav_msgs/Path, T_world_cam per keyframe),
 ``/absscale/target_points`` (x y z object_id vertex_id n_obs angle_deg target_type) and
-``/diagnostics``. Parameters: the scalars of ``SfmConfig`` and its stages as ``features.*``,
+``/diagnostics``. A keyframe's features are detected on a worker thread as soon as its image
+arrives (OpenCV releases the GIL), while its vertices are still on their way or the previous
+keyframe is being added. Parameters: the scalars of ``SfmConfig`` and its stages as ``features.*``,
 ``twoview.*``, ``graph.*``, ``vertices.*``, ``local_map.*``, ``cloud.*`` (which landmarks are
 published).
 """
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import fields, is_dataclass, replace
 import time
 from typing import Any
@@ -62,9 +65,11 @@ class SfmNode(Node):
         group = MutuallyExclusiveCallbackGroup()  # the map is updated by one callback at a time
         self.create_subscription(CameraInfo, '/absscale/camera_info', self._on_info,
                                  common.RELIABLE, callback_group=group)
+        self._detector = ThreadPoolExecutor(1, 'sfm_features')
+        self._prefetched: dict[int, tuple[Any, Future]] = {}  # stamp -> (image, features)
+        self.features_prefetched = 0  # keyframes whose features came from the worker
         self._kf_sub = self.create_subscription(
-            Image, '/absscale/keyframes', lambda m: self._settle(self._pairer.add_first(
-                conversions.stamp_to_ns(m.header.stamp), m)), common.RELIABLE,
+            Image, '/absscale/keyframes', self._on_keyframe, common.RELIABLE,
             callback_group=group)
         self._kv_sub = self.create_subscription(
             PointCloud2, '/absscale/keyframe_vertices', lambda m: self._settle(
@@ -80,6 +85,25 @@ class SfmNode(Node):
             self._camera = conversions.camera_info_to_model(msg)
         except errors.AbsScaleError as err:
             self.get_logger().warning(f'bad camera_info: {err}', throttle_duration_sec=5.0)
+
+    def destroy_node(self) -> None:
+        self._detector.shutdown(wait=False, cancel_futures=True)
+        super().destroy_node()
+
+    def _on_keyframe(self, msg: Image) -> None:
+        stamp_ns = conversions.stamp_to_ns(msg.header.stamp)
+        if self.engine is not None:  # the first keyframe makes the engine (camera) first
+            try:
+                image = conversions.image_msg_to_bgr(msg)
+            except errors.AbsScaleError:
+                image = None  # _process says why
+            if image is not None and image.shape[:2] == (self.engine.camera.height,
+                                                         self.engine.camera.width):
+                self._prefetched[stamp_ns] = (image, self._detector.submit(self.engine.detect,
+                                                                           image))
+                while len(self._prefetched) > 2 * self._pairer.depth + 2:  # never paired
+                    del self._prefetched[min(self._prefetched)]
+        self._settle(self._pairer.add_first(stamp_ns, msg))
 
     def _settle(self, result: pairing.Pairing[Image, PointCloud2]) -> None:
         for stamp_ns, image, vertices in result.pairs:
@@ -114,8 +138,10 @@ class SfmNode(Node):
 
     def _process(self, image_msg: Image, vertices_msg: PointCloud2,
                  motion_msg: TransformStamped | None) -> list[str]:
+        stamp_ns = conversions.stamp_to_ns(image_msg.header.stamp)
+        image, features = self._prefetched.pop(stamp_ns, (None, None))
         try:
-            image = conversions.image_msg_to_bgr(image_msg)
+            image = conversions.image_msg_to_bgr(image_msg) if image is None else image
             rows = conversions.cloud_msg_to_array(vertices_msg)
             step = conversions.tracked_step_from_msg(motion_msg) if motion_msg else None
         except errors.AbsScaleError as err:
@@ -127,10 +153,11 @@ class SfmNode(Node):
                 (self._camera.width, self._camera.height) == (w, h) \
                 else keyframes.nominal_camera(w, h)
             self.engine = sfm.IncrementalSfm(camera, self._cfg, np.random.default_rng(self._seed))
-        stamp_ns = conversions.stamp_to_ns(image_msg.header.stamp)
-        t0 = time.perf_counter()
-        self._last = self.engine.add_keyframe(stamp_ns, image,
-                                              sfm_outputs.vertices_from_rows(rows), step)
+        t0 = time.perf_counter()  # waiting for the prefetched features counts
+        self._last = self.engine.add_keyframe(
+            stamp_ns, image, sfm_outputs.vertices_from_rows(rows), step,
+            features.result() if features is not None else None)
+        self.features_prefetched += features is not None
         sfm_outputs.compact(self.engine)  # finished segments to arrays: memory of long scans
         self._times_ms.append(1e3 * (time.perf_counter() - t0))
         self.statuses[self._last.status] = self.statuses.get(self._last.status, 0) + 1
