@@ -1,4 +1,4 @@
-"""The shipped outdoor sample end to end: a true scale in its own interval, twice the same."""
+"""The shipped samples end to end: a true scale in its own interval (outdoor: twice the same)."""
 from pathlib import Path
 
 from absscale_ros import graph, params
@@ -39,3 +39,15 @@ def test_scale_bench_configures_the_page_the_bag_holds(tmp_path: Path) -> None:
     sections = params.load_yaml(Path(path))
     assert sections['vertex_detector']['target'] == 'a4'
     assert sections['scale'] == params.load_yaml(params.find_config('indoor_paper'))['scale']
+
+
+def test_indoor_sample_claims_a_true_scale() -> None:
+    """The sheet path end to end: a letter page on a plain desk, 10 s of walking."""
+    bag = BAG.parent / 'indoor_paper_sample.mcap'
+    report = graph.run_graph(str(bag), 'indoor_paper', graph.RunOptions(mode='step'))
+    scale = report['nodes']['scale']
+    assert scale['observable'], scale
+    msgs = {t: deserialize_message(d, c) for t, (c, d) in report.pop('_latest').items()}
+    truth = bench_scale.measure(str(bag), report, msgs, groundtruth.load(f'{bag}.gt.json'),
+                                lengths=False)
+    assert scale['interval'][0] <= truth['true_factor'] <= scale['interval'][1], truth
