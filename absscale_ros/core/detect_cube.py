@@ -54,6 +54,9 @@ class CubeConfig:
         the cube posed on that face puts it is left out (``cube_geometry``).
     :param focal_fracs: focal lengths over the larger image side tried in that check without
         K (the one that explains the most vertices is used).
+    :param blur_band_px: when the sharp pass finds no cube, the faces' sides are looked for
+        again as motion-blurred ramps (mid-level crossings), this far either way of the
+        rough side (0 turns it off).
     """
 
     hue_red_deg: tuple[float, float] = (340.0, 20.0)
@@ -76,6 +79,7 @@ class CubeConfig:
     strip_max_px: float = 20.0
     shape_tol_frac: float = 0.04
     focal_fracs: tuple[float, ...] = (0.5, 0.7, 0.9, 1.2, 1.6)
+    blur_band_px: float = 12.0
 
     def __post_init__(self) -> None:
         for name in ('hue_red_deg', 'hue_yellow_deg', 'hue_purple_deg'):
@@ -157,15 +161,19 @@ def _face_quads(mask: npt.NDArray[np.uint8], cfg: CubeConfig, scale: float = 1.0
         return out
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     for c in contours:
+        area, perim = cv2.contourArea(c), cv2.arcLength(c, True)
         # The paper's area is a pixel count: the outline through boundary pixel centres
         # misses about half a pixel all round (perimeter / 2) plus the four corner quarters.
-        if cv2.contourArea(c) + 0.5 * cv2.arcLength(c, True) + 1.0 < min_area:
+        if area + 0.5 * perim + 1.0 < min_area:
             continue
-        area = cv2.contourArea(c)  # eq. 1 on the outline polygon through boundary pixels
-        roundness = 4.0 * np.pi * area / max(cv2.arcLength(c, True), 1e-9) ** 2
+        roundness = 4.0 * np.pi * area / max(perim, 1e-9) ** 2  # eq. 1 on the outline polygon
         if not cfg.roundness_min <= roundness <= cfg.roundness_max:
             continue
-        if area < cfg.min_solidity * cv2.contourArea(cv2.convexHull(c)):
+        # Solidity on pixel areas too (half a pixel beyond both outlines): a thin face seen at
+        # a grazing angle on the work image loses a tenth of its outline area to the staircase.
+        hull = cv2.convexHull(c)
+        hull_px = cv2.contourArea(hull) + 0.5 * cv2.arcLength(hull, True)
+        if area + 0.5 * perim < cfg.min_solidity * hull_px:
             continue
         quad = lines.rough_quad(c)
         if quad is not None:
@@ -198,7 +206,7 @@ def _hough_sides(faces: list[tuple[Array, Array]], cfg: CubeConfig) -> list[Arra
 
 
 def _refine_faces(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array, Array]],
-                  cfg: CubeConfig) -> list[Face]:
+                  cfg: CubeConfig, blurred: bool = False) -> list[Face]:
     """
     Refine every face's sides on the full-resolution colour step across each of them.
 
@@ -212,8 +220,9 @@ def _refine_faces(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array
     side_lines = np.concatenate([ls for _, ls, _ in rough])
     ends = np.concatenate([np.stack([q, np.roll(q, -1, axis=0)], axis=1) for _, _, q in rough])
     n = int(np.clip(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1).max() / 3.0, 12, 48))
-    refined, supports, steps, _, _ = sides.refine(image_bgr, side_lines, ends,
-                                                  (6.0, 4.0, 2.5), n)
+    bands = (cfg.blur_band_px, 4.0, 2.5) if blurred else (6.0, 4.0, 2.5)
+    refined, supports, steps, _, _ = sides.refine(image_bgr, side_lines, ends, bands, n,
+                                                  blurred=blurred)
     faces = []
     for f, (colour, hough, _) in enumerate(rough):
         ls, sup = refined[4 * f:4 * f + 4], supports[4 * f:4 * f + 4]
@@ -241,6 +250,16 @@ def detect_faces(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
     :param half: the image box-filtered to half its size (``INTER_AREA``), when another
         detector made it: the work image when that is its size.
     """
+    return _refine_faces(image_bgr, rough_faces(image_bgr, cfg, half), cfg)
+
+
+def rough_faces(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
+                half: npt.NDArray[np.uint8] | None = None
+                ) -> list[tuple[str, Array, Array]]:
+    """
+    Return (colour, (4, 3) Hough side lines, (4, 2) rough quad px) of every face-like region
+    (the mask stage of ``detect_faces``), full-resolution px.
+    """
     h, w = image_bgr.shape[:2]
     scale = min(1.0, cfg.work_max_side_px / max(h, w))
     size = (round(w * scale), round(h * scale))
@@ -255,7 +274,7 @@ def detect_faces(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
             found.append((colour, (quad + 0.5) / scale - 0.5,
                           (contour.reshape(-1, 2).astype(np.float64) + 0.5) / scale - 0.5))
     hough = _hough_sides([(q, c) for _, q, c in found], cfg)
-    return _refine_faces(image_bgr, [(c, h, q) for (c, q, _), h in zip(found, hough)], cfg)
+    return [(c, h, q) for (c, q, _), h in zip(found, hough)]
 
 
 def _strips(image_bgr: npt.NDArray[np.uint8], faces: list[Face], cfg: CubeConfig
@@ -290,13 +309,25 @@ def detect_cubes(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
     :returns: one detection per cube, with vertices, ids (see ``targets``), edges and
         per-face polygons.
     """
-    faces = detect_faces(image_bgr, cfg, half)
+    rough = rough_faces(image_bgr, cfg, half)
+    Ks = [K] if K is not None else [cube_geometry.default_K(image_bgr.shape, f)
+                                    for f in cfg.focal_fracs]
+    out = _cubes(image_bgr, _refine_faces(image_bgr, rough, cfg), cfg, Ks)
+    if not out and rough and cfg.blur_band_px > 0.0:
+        # Motion blur smears a face's sides into ramps: the steepest point wanders along
+        # them, and the mask stops short of a side shared with another face. Where nothing
+        # is found, look again for the sides at the mid level of wider ramps.
+        out = _cubes(image_bgr, _refine_faces(image_bgr, rough, cfg, blurred=True), cfg, Ks)
+    return out
+
+
+def _cubes(image_bgr: npt.NDArray[np.uint8], faces: list[Face], cfg: CubeConfig,
+           Ks: list[Array]) -> list[targets.TargetDetection]:
+    """Return the cubes that ``faces`` (refined, not yet with strips) assemble into."""
     if not faces:
         return []
     faces += _strips(image_bgr, faces, cfg)
     labels = cube_assembly.cluster_corners(faces, cfg.merge_frac)
-    Ks = [K] if K is not None else [cube_geometry.default_K(image_bgr.shape, f)
-                                    for f in cfg.focal_fracs]
     # Faces that share two vertices share an edge: union them into cubes.
     parent = list(range(len(faces)))
     for a in range(len(faces)):
