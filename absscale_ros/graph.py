@@ -20,6 +20,7 @@ import time
 from typing import Any, Callable
 
 from absscale_ros import params
+from absscale_ros.core.errors import AbsScaleError
 from absscale_ros.domains import DomainLease
 from absscale_ros.nodes import common
 from absscale_ros.nodes.bag_replay import BagReplayNode
@@ -96,6 +97,21 @@ def available_nodes(sections: dict[str, dict[str, Any]] | None = None
     return found
 
 
+def _check_step_window(sections: dict[str, dict[str, Any]]) -> None:
+    """
+    Refuse a step window wider than a node's stamp pairing: the frames in flight would outrun
+    their vertices, be decided unpaired and give another result on every run (window 16
+    against pair_depth 10: 66-79 of 300 frames unpaired, two different factors in two runs).
+    """
+    window = int(params.node_params(sections, 'bag_replay').get('step_window', 1))
+    for node in ('keyframe_selector', 'sfm'):
+        depth = int(params.node_params(sections, node).get('pair_depth', 10))
+        if window > depth:
+            raise AbsScaleError(f'bag_replay step_window {window} > {node} pair_depth {depth}: '
+                                'frames would be decided without their vertices; raise '
+                                'pair_depth or lower step_window')
+
+
 def _overrides(values: dict[str, Any]) -> list[Parameter]:
     return [Parameter(k, value=v) for k, v in values.items()]
 
@@ -128,6 +144,8 @@ def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
     """
     config_path = params.find_config(config)
     sections = params.load_yaml(config_path)
+    if options.mode == 'step' and not options.live:
+        _check_step_window(sections)
     lease = DomainLease() if options.domain_id is None else None
     # Read when a process's first DDS participant starts; node processes inherit it.
     os.environ.update(params.dds_environment())

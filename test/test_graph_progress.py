@@ -1,5 +1,8 @@
 """The progress bar's keyframes and scale when the nodes run in other processes."""
-from absscale_ros import conversions, graph
+import pytest
+
+from absscale_ros import conversions, graph, params
+from absscale_ros.core.errors import AbsScaleError
 
 
 def _summary(*statuses: tuple[str, str, dict]) -> dict:
@@ -29,3 +32,15 @@ def test_latency_is_timed_from_each_frames_publication_and_kept_as_a_series() ->
     assert lat['updates'] == 2 and lat['max'] == 1.5 and lat['median'] == 1.0
     assert lat['series'] == [[0.0, 1.5], [2.0, 0.5]]  # seconds into the replay, latency
     assert graph._latency(published, []) == {'updates': 0}
+
+
+def test_a_step_window_wider_than_the_stamp_pairing_is_refused(tmp_path) -> None:
+    """Frames in flight past pair_depth would be decided without their vertices."""
+    text = params.find_config('outdoor_cube').read_text()
+    assert '    step_window: 4 ' in text
+    for name in params.CONFIG_NAMES:  # the shipped configs pass
+        graph._check_step_window(params.load_yaml(params.find_config(name)))
+    wide = tmp_path / 'wide.yaml'
+    wide.write_text(text.replace('    step_window: 4 ', '    step_window: 16 '))
+    with pytest.raises(AbsScaleError, match='step_window 16 > keyframe_selector pair_depth 10'):
+        graph.run_graph(str(tmp_path / 'no_bag_needed.mcap'), str(wide))
