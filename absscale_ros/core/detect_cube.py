@@ -20,6 +20,10 @@ from absscale_ros.core import (cube_assembly, cube_geometry, cube_strips, lines,
                                targets)
 
 Array = npt.NDArray[np.float64]
+# A face retried in a blur band wider than BLUR_FREE_BAND_PX must ramp (25-75 %, about half
+# the streak) over this share of the band on its most smeared side.
+BLUR_MIN_RAMP_FRAC = 0.25
+BLUR_FREE_BAND_PX = 12.0
 
 
 @dataclass(frozen=True)
@@ -54,9 +58,10 @@ class CubeConfig:
         the cube posed on that face puts it is left out (``cube_geometry``).
     :param focal_fracs: focal lengths over the larger image side tried in that check without
         K (the one that explains the most vertices is used).
-    :param blur_band_px: when the sharp pass finds no cube, the faces' sides are looked for
+    :param blur_bands_px: when the sharp pass finds no cube, the faces' sides are looked for
         again as motion-blurred ramps (mid-level crossings), this far either way of the
-        rough side (0 turns it off).
+        rough side, one pass per band until a cube is found (empty turns it off; a wide
+        band alone misses short ramps next to another edge).
     """
 
     hue_red_deg: tuple[float, float] = (340.0, 20.0)
@@ -79,7 +84,7 @@ class CubeConfig:
     strip_max_px: float = 20.0
     shape_tol_frac: float = 0.04
     focal_fracs: tuple[float, ...] = (0.5, 0.7, 0.9, 1.2, 1.6)
-    blur_band_px: float = 12.0
+    blur_bands_px: tuple[float, ...] = (12.0, 24.0)
 
     def __post_init__(self) -> None:
         for name in ('hue_red_deg', 'hue_yellow_deg', 'hue_purple_deg'):
@@ -206,7 +211,7 @@ def _hough_sides(faces: list[tuple[Array, Array]], cfg: CubeConfig) -> list[Arra
 
 
 def _refine_faces(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array, Array]],
-                  cfg: CubeConfig, blurred: bool = False) -> list[Face]:
+                  cfg: CubeConfig, blur_band_px: float = 0.0) -> list[Face]:
     """
     Refine every face's sides on the full-resolution colour step across each of them.
 
@@ -220,13 +225,27 @@ def _refine_faces(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array
     side_lines = np.concatenate([ls for _, ls, _ in rough])
     ends = np.concatenate([np.stack([q, np.roll(q, -1, axis=0)], axis=1) for _, _, q in rough])
     n = int(np.clip(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1).max() / 3.0, 12, 48))
-    bands = (cfg.blur_band_px, 4.0, 2.5) if blurred else (6.0, 4.0, 2.5)
-    refined, supports, steps, _, _ = sides.refine(image_bgr, side_lines, ends, bands, n,
-                                                  blurred=blurred)
+    bands = (blur_band_px, 4.0, 2.5) if blur_band_px > 0.0 else (6.0, 4.0, 2.5)
+    refined, supports, steps, inside, outside = sides.refine(
+        image_bgr, side_lines, ends, bands, n, blurred=blur_band_px > 0.0)
+    smeared = np.ones(len(rough), bool)
+    if blur_band_px > BLUR_FREE_BAND_PX:
+        # A side found in a wide band is believed only on a face smeared as wide, and alike
+        # on opposite sides (one streak crosses both): a red building behind the cube passes
+        # the looser search, but only its side on a grass verge ramps wide. (Not in a band
+        # as narrow as 2x the sharp one: there a side shared with another face, or cut by an
+        # occluder, ramps unlike its opposite side, and the looser search gains little.)
+        ramps = sides.ramp_widths(image_bgr, refined, ends, blur_band_px, inside, outside)
+        ramps = ramps.reshape(-1, 2, 2).transpose(0, 2, 1)  # (face, pair, opposite side)
+        gap = np.abs(ramps[..., 0] - ramps[..., 1])
+        smeared = ((ramps.max(axis=(1, 2)) >= BLUR_MIN_RAMP_FRAC * blur_band_px)
+                   & (gap <= np.maximum(2.0, 0.5 * ramps.max(axis=2))).all(axis=1))
     faces = []
     for f, (colour, hough, _) in enumerate(rough):
         ls, sup = refined[4 * f:4 * f + 4], supports[4 * f:4 * f + 4]
         if steps[4 * f:4 * f + 4].min() < cfg.min_step or sup.min() < cfg.min_support:
+            continue
+        if not smeared[f]:
             continue
         corners = lines.quad_corners(list(ls))
         hough_corners = lines.quad_corners(list(hough))
@@ -313,11 +332,13 @@ def detect_cubes(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
     Ks = [K] if K is not None else [cube_geometry.default_K(image_bgr.shape, f)
                                     for f in cfg.focal_fracs]
     out = _cubes(image_bgr, _refine_faces(image_bgr, rough, cfg), cfg, Ks)
-    if not out and rough and cfg.blur_band_px > 0.0:
+    for band in cfg.blur_bands_px if rough else ():
+        if out:
+            break
         # Motion blur smears a face's sides into ramps: the steepest point wanders along
         # them, and the mask stops short of a side shared with another face. Where nothing
         # is found, look again for the sides at the mid level of wider ramps.
-        out = _cubes(image_bgr, _refine_faces(image_bgr, rough, cfg, blurred=True), cfg, Ks)
+        out = _cubes(image_bgr, _refine_faces(image_bgr, rough, cfg, band), cfg, Ks)
     return out
 
 
