@@ -7,7 +7,8 @@ with its ground-truth vertices (+0.3 px) when ``BAG.gt.json`` is beside it. Prin
 of ``IncrementalSfm.add_keyframe`` (one OpenCV thread; decoding outside) per bucket of map
 size, the final batch, and the camera-centre RMSE after Sim(3). With ``--pythonpath A B`` it
 runs itself once per path side by side (same load) and prints the buckets in one table, e.g.
-the code at HEAD (a ``git worktree``) against the working tree.
+the code at HEAD (a ``git worktree``) against the working tree. ``--set KEY=VALUE`` changes
+the ``SfmConfig`` of every run.
 """
 import argparse
 import json
@@ -15,18 +16,37 @@ import os
 import subprocess
 import sys
 import time
+from typing import Any
 
 import cv2
 import numpy as np
 
 
-def run(bag: str, every: int, limit: int) -> dict:
+def config(settings: list[str]) -> Any:
+    """``SfmConfig()`` with ``KEY=VALUE`` settings (``graph.window=6``: a stage's field)."""
+    from dataclasses import replace
+    from absscale_ros.core import sfm
+    cfg = sfm.SfmConfig()
+    stages = {'features': 'feature_cfg', 'twoview': 'twoview_cfg', 'graph': 'graph_cfg',
+              'local_map': 'local_cfg'}
+    for item in settings:
+        key, value = item.split('=', 1)
+        stage, _, name = key.rpartition('.')
+        owner = getattr(cfg, stages[stage]) if stage else cfg
+        old = getattr(owner, name)
+        new = (value == 'true') if isinstance(old, bool) else type(old)(value)
+        cfg = replace(cfg, **{stages[stage]: replace(owner, **{name: new})}) if stage else \
+            replace(cfg, **{name: new})
+    return cfg
+
+
+def run(bag: str, every: int, limit: int, settings: list[str]) -> dict:
     from absscale_ros.core import sfm
     from absscale_ros.tools import bench_sfm
     cv2.setNumThreads(1)
     args = argparse.Namespace(keyframes_from=None, select=False, every=every)
     camera, gt, frames = bench_sfm._from_bag(bag, args)
-    engine = sfm.IncrementalSfm(camera, sfm.SfmConfig(), np.random.default_rng(0))
+    engine = sfm.IncrementalSfm(camera, config(settings), np.random.default_rng(0))
     rng = np.random.default_rng(0)
     rows, poses, truth = [], {}, {}
     for kf_id, (stamp, img, T, fr) in enumerate(frames):
@@ -89,13 +109,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--pythonpath', nargs='+', default=[],
                         help='run once per PYTHONPATH (in parallel) and compare')
     parser.add_argument('--json', action='store_true', help='print the raw result as JSON')
+    parser.add_argument('--set', nargs='+', default=[], metavar='KEY=VALUE',
+                        help='SfmConfig settings for every run, e.g. max_velocity_change=0 '
+                             '(the 60 s bag every 6th frame otherwise breaks its segments at '
+                             '~75 keyframes) or graph.window=6')
     args = parser.parse_args(argv)
     if not args.pythonpath:
-        result = run(args.bag, args.every, args.limit)
+        result = run(args.bag, args.every, args.limit, args.set)
         print(json.dumps(result) if args.json else table({args.bag: result}, args.bucket))
         return 0
     cmd = [sys.executable, os.path.abspath(__file__), args.bag, '--every', str(args.every),
-           '--limit', str(args.limit), '--json']
+           '--limit', str(args.limit), '--json'] + (['--set', *args.set] if args.set else [])
     procs = {p: subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True,
                                  env={**os.environ, 'PYTHONPATH': p, 'OMP_NUM_THREADS': '1'})
              for p in args.pythonpath}
