@@ -27,9 +27,9 @@ def _errors(fr, det):
     for p in det.vertices_px:
         d = np.hypot(*(true - p).T)
         i = int(np.nanargmin(d))
-        edge = max(np.hypot(*(true[b if a == i else a] - true[i]))
-                   for a, b in fr['edges'] if i in (a, b) and fr['vertices_px'][b if a == i
-                                                                             else a] is not None)
+        nbrs = [b if a == i else a for a, b in fr['edges'] if i in (a, b)]
+        edge = max(np.hypot(*(np.array(fr['vertices_px'][j]) - true[i]))
+                   for j in nbrs if fr['vertices_px'][j] is not None)
         out.append((d[i], edge))
     return np.array(out)
 
