@@ -20,8 +20,8 @@ from absscale_ros.core import (cube_assembly, cube_geometry, cube_strips, lines,
                                targets)
 
 Array = npt.NDArray[np.float64]
-# A face retried in a blur band wider than BLUR_FREE_BAND_PX must ramp (25-75 %, about half
-# the streak) over this share of the band on its most smeared side.
+# The blur retry (``_smeared``): a face must ramp over this share of the band, and alike on
+# opposite sides in a band wider than BLUR_FREE_BAND_PX.
 BLUR_MIN_RAMP_FRAC = 0.25
 BLUR_FREE_BAND_PX = 12.0
 
@@ -225,27 +225,20 @@ def _refine_faces(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array
     side_lines = np.concatenate([ls for _, ls, _ in rough])
     ends = np.concatenate([np.stack([q, np.roll(q, -1, axis=0)], axis=1) for _, _, q in rough])
     n = int(np.clip(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1).max() / 3.0, 12, 48))
-    bands = (blur_band_px, 4.0, 2.5) if blur_band_px > 0.0 else (6.0, 4.0, 2.5)
-    refined, supports, steps, inside, outside = sides.refine(
-        image_bgr, side_lines, ends, bands, n, blurred=blur_band_px > 0.0)
-    smeared = np.ones(len(rough), bool)
-    if blur_band_px > BLUR_FREE_BAND_PX:
-        # A side found in a wide band is believed only on a face smeared as wide, and alike
-        # on opposite sides (one streak crosses both): a red building behind the cube passes
-        # the looser search, but only its side on a grass verge ramps wide. (Not in a band
-        # as narrow as 2x the sharp one: there a side shared with another face, or cut by an
-        # occluder, ramps unlike its opposite side, and the looser search gains little.)
-        ramps = sides.ramp_widths(image_bgr, refined, ends, blur_band_px, inside, outside)
-        ramps = ramps.reshape(-1, 2, 2).transpose(0, 2, 1)  # (face, pair, opposite side)
-        gap = np.abs(ramps[..., 0] - ramps[..., 1])
-        smeared = ((ramps.max(axis=(1, 2)) >= BLUR_MIN_RAMP_FRAC * blur_band_px)
-                   & (gap <= np.maximum(2.0, 0.5 * ramps.max(axis=2))).all(axis=1))
+    if blur_band_px > 0.0:
+        rough, side_lines, ends, colours = _smeared(image_bgr, rough, side_lines, ends, n,
+                                                    blur_band_px)
+        if not rough:
+            return []
+        refined, supports, steps, _, _ = sides.refine(image_bgr, side_lines, ends, (4.0, 2.5),
+                                                      n, colours=colours, blurred=True)
+    else:
+        refined, supports, steps, _, _ = sides.refine(image_bgr, side_lines, ends,
+                                                      (6.0, 4.0, 2.5), n)
     faces = []
     for f, (colour, hough, _) in enumerate(rough):
         ls, sup = refined[4 * f:4 * f + 4], supports[4 * f:4 * f + 4]
         if steps[4 * f:4 * f + 4].min() < cfg.min_step or sup.min() < cfg.min_support:
-            continue
-        if not smeared[f]:
             continue
         corners = lines.quad_corners(list(ls))
         hough_corners = lines.quad_corners(list(hough))
@@ -259,6 +252,34 @@ def _refine_faces(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array
             continue  # the refinement ran off to another edge
         faces.append(Face(colour, corners, ls.copy(), sup.copy()))
     return faces
+
+
+def _smeared(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array, Array]],
+             side_lines: Array, ends: Array, n: int, band_px: float
+             ) -> tuple[list[tuple[str, Array, Array]], Array, Array, tuple[Array, Array]]:
+    """
+    Return the faces of ``rough`` worth looking for as motion-blurred, with their sides found
+    at mid level in a band of ``band_px`` (the first pass of ``sides.refine``), their ends and
+    (inside, outside) colours, for the finer passes.
+
+    A face must ramp (25-75 %, about half the streak) over ``BLUR_MIN_RAMP_FRAC`` of the band
+    on its most smeared side. In a band wider than ``BLUR_FREE_BAND_PX`` its opposite sides
+    must also ramp alike (one streak crosses both): a red building behind the cube passes the
+    looser search, but only its side on a grass verge ramps wide. (Not in a band as narrow as
+    2x the sharp one: there a side shared with another face, or cut by an occluder, ramps
+    unlike its opposite side, and the looser search gains little.)
+    """
+    first, _, _, inside, outside = sides.refine(image_bgr, side_lines, ends, (band_px,), n,
+                                                blurred=True)
+    ramps = sides.ramp_widths(image_bgr, first, ends, band_px, inside, outside)
+    ramps = ramps.reshape(-1, 2, 2).transpose(0, 2, 1)  # (face, pair, opposite side)
+    keep = ramps.max(axis=(1, 2)) >= BLUR_MIN_RAMP_FRAC * band_px
+    if band_px > BLUR_FREE_BAND_PX:
+        gap = np.abs(ramps[..., 0] - ramps[..., 1])
+        keep &= (gap <= np.maximum(2.0, 0.5 * ramps.max(axis=2))).all(axis=1)
+    rows = np.repeat(keep, 4)
+    return ([r for r, k in zip(rough, keep) if k], first[rows], ends[rows],
+            (inside[rows], outside[rows]))
 
 
 def detect_faces(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
