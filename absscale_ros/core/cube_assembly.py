@@ -4,6 +4,7 @@ Cube assembly: face corners merged into cube vertices, and one detection per cub
 Corners of different faces that meet are one cube vertex: the point nearest (least squares)
 to all the edges meeting there, as the paper does when three edges do not meet exactly.
 """
+import dataclasses
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -45,6 +46,27 @@ def cluster_corners(faces: list['Face'], merge_frac: float) -> npt.NDArray[np.in
     for i, j in zip(*np.nonzero(np.triu(near, 1))):  # in the order of the pairwise loop
         parent[find(parent, int(i))] = find(parent, int(j))
     return np.array([find(parent, i) for i in range(len(pts))], dtype=np.int64)
+
+
+def mute_sandwiched(faces: list['Face'], labels: npt.NDArray[np.int64]) -> list['Face']:
+    """
+    Return ``faces`` with every strip whose far side reaches a corner of another whole face
+    made mute (``runs_on``): a face seen edge-on borders the cube's faces on one side only
+    (beyond it lie hidden faces or the background), so a strip between two faces (a cube's
+    top seen under a box of a cube colour behind it) says nothing about either pose.
+
+    :param labels: (F*4,) cluster label per face corner (``cluster_corners``).
+    """
+    whole = {int(lab) for f, face in enumerate(faces) if not face.thin
+             for lab in labels[4 * f:4 * f + 4]}
+    out = []
+    for f, face in enumerate(faces):
+        lab = labels[4 * f:4 * f + 4]  # strip corners: c0, far0, far1, c1
+        far = {int(lab[1]), int(lab[2])} - {int(lab[0]), int(lab[3])}
+        if face.thin and not face.runs_on and far & whole:
+            face = dataclasses.replace(face, runs_on=True)
+        out.append(face)
+    return out
 
 
 def _posing(face: 'Face') -> bool:

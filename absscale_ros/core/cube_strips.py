@@ -85,8 +85,9 @@ def strip_faces(image_bgr: npt.NDArray[np.uint8], corners: list[Array], colours:
                 masks_of: MaskFn, max_width: float, min_width: float = 1.5,
                 min_frac: float = 0.5) -> list[tuple[str, Array, float, bool]]:
     """
-    Return (colour, (4, 2) corners px, support, runs on) of thin strips along unshared face
-    sides; "runs on" when the strip's colour goes on past an end of the side (``_runs_on``).
+    Return (colour, (4, 2) corners px, support, mute) of thin strips along unshared face
+    sides; "mute" (no evidence for a cube pose) when the strip's colour goes on past an end
+    of the side (``_runs_on``) or the strip tapers to nothing at one end.
 
     Strip corners are ``[c_i, far_i, far_i1, c_i1]`` for side ``c_i -> c_i1`` of its face.
 
@@ -133,14 +134,18 @@ def strip_faces(image_bgr: npt.NDArray[np.uint8], corners: list[Array], colours:
             t, wk = ts[ok], w[ok]  # a least-squares line: width linear along the side
             slope = ((t - t.mean()) * (wk - wk.mean())).sum() / ((t - t.mean()) ** 2).sum()
             w0, w1 = wk.mean() - slope * t.mean(), wk.mean() + slope * (1.0 - t.mean())
-            if min(w0, w1) < 0.5 * min_width:
+            if max(w0, w1) < min_width or min(w0, w1) < -min_width:
                 continue
+            # A strip may taper to nothing (a top seen at a grazing angle: half of it above
+            # each side face); so may a sliver of a box behind, so a tapered one is mute.
+            tapered = min(w0, w1) < 0.5 * min_width
+            w0, w1 = max(w0, 0.0), max(w1, 0.0)
             strip = np.array([c0, c0 + w0 * n, c1 + w1 * n, c1])
-            found.setdefault(f, []).append((i, other, strip, float(ok.mean()), False))
+            found.setdefault(f, []).append((i, other, strip, float(ok.mean()), tapered))
     strips = [(f, j, x[2], x[1]) for f, xs in found.items() for j, x in enumerate(xs)]
     for (f, j, _, _), on in zip(strips, _runs_on(image_bgr, [x[2] for x in strips],
                                                  [x[3] for x in strips], masks_of)):
-        found[f][j] = found[f][j][:4] + (on,)
+        found[f][j] = found[f][j][:4] + (on or found[f][j][4],)
     out = []
     for face_found in found.values():
         # Faces next to one face differ in colour: one colour on two neighbouring sides is a

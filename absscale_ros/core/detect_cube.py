@@ -109,7 +109,8 @@ class Face:
     """
     A detected face: colour, (4, 2) corners px, (4, 3) side lines, side supports; ``thin``
     for a strip seen edge-on (``cube_strips``: only its corners 0 and 3 are measured), and
-    ``runs_on`` for a strip whose colour goes on past its side (no evidence for the cube).
+    ``runs_on`` for a strip that is no evidence for a cube pose (its colour goes on past its
+    side, it tapers to nothing, or it lies between two faces in the blur retry).
     """
 
     colour: str
@@ -174,11 +175,7 @@ def _face_quads(mask: npt.NDArray[np.uint8], cfg: CubeConfig, scale: float = 1.0
         roundness = 4.0 * np.pi * area / max(perim, 1e-9) ** 2  # eq. 1 on the outline polygon
         if not cfg.roundness_min <= roundness <= cfg.roundness_max:
             continue
-        # Solidity on pixel areas too (half a pixel beyond both outlines): a thin face seen at
-        # a grazing angle on the work image loses a tenth of its outline area to the staircase.
-        hull = cv2.convexHull(c)
-        hull_px = cv2.contourArea(hull) + 0.5 * cv2.arcLength(hull, True)
-        if area + 0.5 * perim < cfg.min_solidity * hull_px:
+        if area < cfg.min_solidity * cv2.contourArea(cv2.convexHull(c)):
             continue
         quad = lines.rough_quad(c)
         if quad is not None:
@@ -359,17 +356,24 @@ def detect_cubes(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
         # Motion blur smears a face's sides into ramps: the steepest point wanders along
         # them, and the mask stops short of a side shared with another face. Where nothing
         # is found, look again for the sides at the mid level of wider ramps.
-        out = _cubes(image_bgr, _refine_faces(image_bgr, rough, cfg, band), cfg, Ks)
+        out = _cubes(image_bgr, _refine_faces(image_bgr, rough, cfg, band), cfg, Ks, True)
     return out
 
 
 def _cubes(image_bgr: npt.NDArray[np.uint8], faces: list[Face], cfg: CubeConfig,
-           Ks: list[Array]) -> list[targets.TargetDetection]:
-    """Return the cubes that ``faces`` (refined, not yet with strips) assemble into."""
+           Ks: list[Array], blurred: bool = False) -> list[targets.TargetDetection]:
+    """
+    Return the cubes that ``faces`` (refined, not yet with strips) assemble into;
+    ``blurred`` for faces of the blur retry.
+    """
     if not faces:
         return []
     faces += _strips(image_bgr, faces, cfg)
     labels = cube_assembly.cluster_corners(faces, cfg.merge_frac)
+    if blurred:
+        # Looser sides let a box behind the cube pose it from a strip that is the cube's own
+        # face seen edge-on between the two: no such evidence here.
+        faces = cube_assembly.mute_sandwiched(faces, labels)
     # Faces that share two vertices share an edge: union them into cubes.
     parent = list(range(len(faces)))
     for a in range(len(faces)):

@@ -57,12 +57,36 @@ def test_wide_blur_band_needs_smeared_sides(monkeypatch):
     assert _cubes(name)[1] != []
 
 
-def test_thin_top_at_a_grazing_angle_is_a_face():
-    # The red top, 4-12 px thick, outlines with solidity 0.90 on the half-size work image;
-    # on pixel areas it passes and all seven visible vertices are found.
-    fr, dets = _cubes('outdoor_cube_1_87.jpg')
-    assert fr['motion_blur_px'] < 3.0
-    assert len(dets) == 1 and {c for c, _ in dets[0].polygons} == {'red', 'yellow', 'purple'}
+@pytest.mark.parametrize('name,min_recall',
+                         [('outdoor_cube_1_11.jpg', 0.55), ('outdoor_cube_1_87.jpg', 0.95)])
+def test_thin_top_found_as_strips_that_taper_to_nothing(name, min_recall):
+    # A red top 1-12 px thick at a grazing angle: above each side face it tapers to nothing
+    # at one end (it was dropped, and with it all of the top's pixels).
+    fr, dets = _cubes(name)
+    assert fr['motion_blur_px'] < 3.0 and len(dets) == 1
+    shape = (720, 1280)
+    top = max((f for f in fr['faces'] if f['colour'] == 'red'),
+              key=lambda f: sum(fr['vertex_visible'][i] for i in f['vertex_ids']))
+    true, found = np.zeros(shape, np.uint8), np.zeros(shape, np.uint8)
+    quad = np.array([fr['vertices_px'][i] for i in top['vertex_ids']])
+    cv2.fillPoly(true, [np.round(quad * 16).astype(np.int32)], 1, shift=4)
+    for colour, poly in dets[0].polygons:
+        if colour == 'red':
+            cv2.fillPoly(found, [np.round(poly * 16).astype(np.int32)], 1, shift=4)
+    both = int((true & found).sum())
+    assert both >= min_recall * true.sum() and both >= 0.85 * found.sum()
     err = _errors(fr, dets[0])
-    assert len(err) == sum(fr['vertex_visible']) == 7
-    assert np.median(err[:, 0] / err[:, 1]) < 0.005 and (err[:, 0] < 1.0).all()
+    assert np.median(err[:, 0] / err[:, 1]) < 0.01 and (err[:, 0] < 0.05 * err[:, 1]).all()
+
+
+def test_blur_retry_takes_no_pose_from_a_strip_between_two_faces(monkeypatch):
+    # The cube's red top seen between its purple face and a yellow box behind it: as a strip
+    # of the box it posed a cube on the box (three vertices 18-77 px off) in the blur retry.
+    name = 'outdoor_cube_4v_55.jpg'
+    fr, dets = _cubes(name)
+    assert fr['motion_blur_px'] > 10.0
+    for det in dets:
+        assert (_errors(fr, det)[:, 0] < 8.0).all()
+    monkeypatch.setattr(detect_cube.cube_assembly, 'mute_sandwiched', lambda faces, _: faces)
+    wrong = [e for det in _cubes(name)[1] for e in _errors(fr, det)[:, 0] if e > 8.0]
+    assert len(wrong) >= 2
