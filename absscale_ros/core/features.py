@@ -23,8 +23,11 @@ class FeatureConfig:
     ransac_px: float = 1.5  # epipolar distance threshold of the fundamental-matrix check
     min_inliers: int = 20  # fewer verified matches than this is no match at all
     max_width_px: int = 640  # detect on a copy downscaled to this width (0: full size)
-    flann_checks: int = 32  # > 0: approximate k-d tree matching, leaves checked; 0: brute force
-    flann_trees: int = 4  # randomised k-d trees of that index
+    # > 0: approximate k-d tree matching, leaves checked; 0: brute force. 16 leaves of 2 trees:
+    # half the CPU of 32 of 4 (~40 ms a keyframe), 2.5-6 % fewer verified matches than brute
+    # force (32 of 4: 1-1.5 %), the SfM as accurate on the tuning bags.
+    flann_checks: int = 16
+    flann_trees: int = 2  # randomised k-d trees of that index
 
     def __post_init__(self) -> None:
         if self.detector not in DETECTORS:

@@ -42,7 +42,9 @@ class GraphConfig:
     batch_iterations: int = 25
     cull_px: float = 3.0  # observations further than this after a batch are dropped
     window: int = 10  # keyframes iSAM2 may move between batches; older ones are held
-    incremental_min_views: int = 3  # a feature landmark enters iSAM2 once this many see it,
+    # A feature landmark enters iSAM2 once this many keyframes see it (4, not 3: iSAM2's
+    # update ~30 % cheaper, the fewer-view ones re-triangulated and taken by every batch), ...
+    incremental_min_views: int = 4
     incremental_min_obs: int = 300  # ... or sooner while the newest keyframe has fewer in it
     relinearize_threshold: float = 0.01  # iSAM2 relinearises a variable that moved this far
     relinearize_skip: int = 10  # ... checking every this many updates

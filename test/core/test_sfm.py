@@ -18,8 +18,9 @@ sys.path.insert(0, str(Path(__file__).parent))
 import sfm_scenes  # noqa: E402
 
 
-def _run(seq: sfm_scenes.Sequence) -> tuple[sfm.IncrementalSfm, list[sfm.UpdateResult]]:
-    engine = sfm.IncrementalSfm(seq.camera, sfm.SfmConfig(), np.random.default_rng(7))
+def _run(seq: sfm_scenes.Sequence, cfg: sfm.SfmConfig | None = None
+         ) -> tuple[sfm.IncrementalSfm, list[sfm.UpdateResult]]:
+    engine = sfm.IncrementalSfm(seq.camera, cfg or sfm.SfmConfig(), np.random.default_rng(7))
     return engine, [engine.add_keyframe(k, img) for k, img in enumerate(seq.images_bgr)]
 
 
@@ -168,10 +169,20 @@ def outdoor_orbit() -> sfm_scenes.Sequence:
     return sfm_scenes.make_sequence('outdoor_cube', 1, count=10)
 
 
+# The two tests below sit near their thresholds on this orbit, whose map moves with the match
+# set: they fix the matching (and iSAM2's entry) they were written with, to test the checks.
+_FIXED_MATCHING = replace(
+    sfm.SfmConfig(), feature_cfg=replace(feat.FeatureConfig(), flann_checks=32, flann_trees=4),
+    graph_cfg=replace(sfm_graph.GraphConfig(), incremental_min_views=3))
+
+
 def test_second_rigid_motion_makes_an_initial_pair_ambiguous(outdoor_orbit) -> None:
     # A repeated texture matched one period off is a second rigid motion among the matches;
     # here it is a real one: keyframe 2's matches with keyframe 8 mixed into those with 5.
-    seq, cfg = outdoor_orbit, sfm.SfmConfig()
+    # The pair is weak (median ray angle ~2 degrees): its direction depends on the exact match
+    # set (exact matching: too little parallax; FLANN 2 x 24: reversed), so the matching is
+    # fixed here (4 trees, 32 leaves: 0.986 to the true direction; 2 x 16 gives 0.953).
+    seq, cfg = outdoor_orbit, _FIXED_MATCHING
     engine = sfm.IncrementalSfm(seq.camera, cfg, np.random.default_rng(7))
     f = [feat.detect(seq.images_bgr[k], seq.camera, cfg.feature_cfg) for k in (2, 5, 8)]
     ab, ac = engine._verified(f[0], f[1]), engine._verified(f[0], f[2])
@@ -192,9 +203,11 @@ def test_second_rigid_motion_makes_an_initial_pair_ambiguous(outdoor_orbit) -> N
 def test_pose_off_by_a_texture_period_is_disowned(outdoor_orbit) -> None:
     # The map of the orbit; the newest keyframe's ground landmarks moved a "period" along the
     # ground (what matching one period off amounts to) carry a pose the rest of the scene
-    # (cube, objects, facades) does not support.
+    # (cube, objects, facades) does not support. Near the threshold: the shifted pose's
+    # off-plane support is 0.28-0.40 of the on-plane one (refused below 0.35) as the matching
+    # and iSAM2 settings vary (0.34 with these).
     seq = outdoor_orbit
-    engine, results = _run(seq)
+    engine, results = _run(seq, _FIXED_MATCHING)
     assert results[-1].segments == 1 and results[-1].keyframes == 10  # nothing refused
     m, kf = engine.current.map, engine.current.map.keyframes[9]
     kps = np.flatnonzero(kf.landmark_of >= 0)

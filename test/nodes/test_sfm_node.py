@@ -100,12 +100,13 @@ def test_map_topics_match_the_core_and_every_input_is_acknowledged(context) -> N
     assert sorted({a.stamp_ns for a in probe.acks}) == stamps
     for topic in OUTPUTS:
         assert [conversions.stamp_to_ns(m.header.stamp) for m in probe.got[topic]] == stamps
-    # The same keyframes through the core alone give the same map.
+    # The same keyframes through the core alone give the same map (its vertices as the node
+    # gets them: float32 px in the message; a 1e-5 px difference can flip a match).
     engine = sfm.IncrementalSfm(seq.camera, sfm.SfmConfig(), np.random.default_rng(0))
     rng = np.random.default_rng(5)
     for k, image in enumerate(seq.images_bgr):
-        engine.add_keyframe(stamps[k], image, sfm_scenes.detections(seq, k, rng)[0],
-                            _tracked(seq, k, stamps))
+        vertices = sfm_outputs.vertices_from_rows(_rows(sfm_scenes.detections(seq, k, rng)[0]))
+        engine.add_keyframe(stamps[k], image, vertices, _tracked(seq, k, stamps))
     poses, pose_stamps = conversions.path_msg_to_poses(probe.got[OUTPUTS[1]][-1])
     ids, T = engine.current.map.poses()
     assert list(pose_stamps) == [engine.current.map.keyframes[i].stamp_ns for i in ids]
