@@ -231,6 +231,9 @@ class DenseFusion:
             if self.sweep.plane else None
         depth = dense_sweep.sweep(grey, [(f.view[1], T) for f, (_, T) in zip(frames[1:], views)],
                                   K, near, far, self.sweep, plane)
+        if self.sweep.edge_jump > 0.0:
+            depth[dense_sweep.depth_edges(depth, self.sweep.edge_jump,
+                                          self.sweep.edge_radius_px)] = 0.0
         centres = [-T[:3, :3].T @ T[:3, 3] for _, T in views]
         depth[~dense_sweep.precise(depth, K, centres, self.sweep.max_depth_baselines,
                                    self.sweep.max_step_m)] = 0.0

@@ -42,6 +42,8 @@ class SweepConfig:
     max_depth_baselines: float = 15.0  # deeper than this many baselines across the ray: dropped
     max_step_m: float = 0.0  # range change per pixel of parallax larger than this: dropped
     max_angle_deg: float = 40.0  # neighbours looking further away are not used, degrees
+    edge_jump: float = 0.0  # depth jumps between neighbouring pixels above this fraction ...
+    edge_radius_px: int = 3  # ... drop the pixels this close (window spill; 0 jump: keep)
     plane: bool = True  # also sweep planes parallel to the nearby points' dominant plane
     plane_band: float = 0.1  # ... offsets within this fraction of the plane's own
     plane_tolerance: float = 0.01  # RANSAC inlier distance, fraction of the points' range
@@ -194,6 +196,25 @@ def dominant_plane(points: FloatArray, cfg: SweepConfig,
     if d < 1e-6 or abs(n[2]) > np.cos(np.radians(cfg.plane_min_slant_deg)):
         return None
     return n, d
+
+
+def depth_edges(depth: Image32, jump_rel: float, radius_px: int) -> npt.NDArray[np.bool_]:
+    """
+    Pixels within ``radius_px`` of a jump of more than ``jump_rel`` x depth between two
+    neighbouring pixels with depth. A window straddling an object's outline matches the
+    object: its depth spills onto the background there (points floating beside the object).
+    """
+    jump = np.zeros(depth.shape, bool)
+    for a, b in ((depth[:, 1:], depth[:, :-1]), (depth[1:, :], depth[:-1, :])):
+        step = (a > 0) & (b > 0) & (np.abs(a - b) > jump_rel * np.minimum(a, b))
+        if a.shape[1] < depth.shape[1]:
+            jump[:, 1:] |= step
+            jump[:, :-1] |= step
+        else:
+            jump[1:, :] |= step
+            jump[:-1, :] |= step
+    size = 2 * radius_px + 1
+    return cv2.dilate(jump.astype(np.uint8), np.ones((size, size), np.uint8)).astype(bool)
 
 
 def precise(depth: Image32, K: FloatArray, centres: list[FloatArray], max_baselines: float,

@@ -172,3 +172,12 @@ def test_far_points_are_dropped_by_their_depth_step() -> None:
     ok = dense_sweep.precise(depth, K, [np.array([0.5, 0.0, 0.0])], 100.0, 0.15)
     # 4^2 / (300 * 0.5) = 0.107 m per px passes, 8^2 / 150 = 0.43 m does not
     assert ok[90, 100] and not ok[90, 200]
+
+
+def test_depth_edges_drop_the_spill_beside_an_outline_not_a_slanted_ground() -> None:
+    depth = np.tile(np.linspace(4.0, 16.0, 120, dtype=np.float32)[:, None], (1, 160))
+    depth[40:60, 50:70] = 3.0  # a box in front of the ground
+    edges = dense_sweep.depth_edges(depth, 0.1, 3)
+    # The ground's smooth 3 % per row is no edge; the box's outline is, 3 px either side.
+    assert not edges[:, :40].any() and not edges[:30, :].any()
+    assert edges[50, 46:54].all() and not edges[50, 45] and not edges[50, 54:66].any()
