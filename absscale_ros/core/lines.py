@@ -150,11 +150,7 @@ def rectangle_aspect(corners_px: Array, K: Array | None, focal_px: float,
     is unknown (``K`` None), which falls back to ``focal_px`` when the sides are too close to
     parallel to tell; with the intrinsics the homography gives the side ratio.
     """
-    m = np.hstack([corners_px[[0, 1, 3, 2]], np.ones((4, 1))])  # m1 (0,0) m2 (w,0) m3 (0,h)
-    c03 = cross3(m[0], m[3])
-    k2 = c03 @ m[2] / (cross3(m[1], m[3]) @ m[2])
-    k3 = c03 @ m[1] / (cross3(m[2], m[3]) @ m[1])
-    n2, n3 = k2 * m[1] - m[0], k3 * m[2] - m[0]
+    n2, n3 = (v[0] for v in _side_directions(corners_px[None]))
     if K is None:
         u0, v0 = centre_px
         f2 = focal_px ** 2
@@ -166,26 +162,32 @@ def rectangle_aspect(corners_px: Array, K: Array | None, focal_px: float,
             if (0.3 * focal_px) ** 2 < est < (3.0 * focal_px) ** 2:
                 f2 = est
         K = np.array([[np.sqrt(f2), 0.0, u0], [0.0, np.sqrt(f2), v0], [0.0, 0.0, 1.0]])
-    Ki = np.linalg.inv(K)
-    a2, a3 = Ki @ n2, Ki @ n3
-    ratio = float(np.sqrt((a2 @ a2) / max(a3 @ a3, 1e-18)))
-    return max(ratio, 1.0 / max(ratio, 1e-12))
+    return float(_aspects_with_K(n2[None], n3[None], K)[0])
 
 
 def rectangle_aspects(corners_px: Array, K: Array) -> Array:
     """
     ``rectangle_aspect`` with intrinsics of many quadrilaterals (M, 4, 2) at once: (M,).
     """
+    return _aspects_with_K(*_side_directions(corners_px), K)
+
+
+def _side_directions(corners_px: Array) -> tuple[Array, Array]:
+    """(M, 3) homogeneous images of the two side directions of M quadrilaterals (M, 4, 2)."""
     m = np.concatenate([corners_px[:, [0, 1, 3, 2]], np.ones(corners_px.shape[:2] + (1,))],
-                       axis=2)
+                       axis=2)  # m1 (0,0) m2 (w,0) m3 (0,h)
     c03 = np.cross(m[:, 0], m[:, 3])
     k2 = np.einsum('mi,mi->m', c03, m[:, 2]) / np.einsum('mi,mi->m', np.cross(m[:, 1], m[:, 3]),
                                                          m[:, 2])
     k3 = np.einsum('mi,mi->m', c03, m[:, 1]) / np.einsum('mi,mi->m', np.cross(m[:, 2], m[:, 3]),
                                                          m[:, 1])
+    return k2[:, None] * m[:, 1] - m[:, 0], k3[:, None] * m[:, 2] - m[:, 0]
+
+
+def _aspects_with_K(n2: Array, n3: Array, K: Array) -> Array:
+    """(M,) long/short side ratios from the side directions and the intrinsics."""
     Ki = np.linalg.inv(K)
-    a2 = (k2[:, None] * m[:, 1] - m[:, 0]) @ Ki.T
-    a3 = (k3[:, None] * m[:, 2] - m[:, 0]) @ Ki.T
+    a2, a3 = n2 @ Ki.T, n3 @ Ki.T
     ratio = np.sqrt(np.einsum('mi,mi->m', a2, a2) / np.maximum(np.einsum('mi,mi->m', a3, a3),
                                                                1e-18))
     return np.maximum(ratio, 1.0 / np.maximum(ratio, 1e-12))
