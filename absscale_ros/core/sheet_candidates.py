@@ -163,7 +163,6 @@ def colour_quads(work_bgr: npt.NDArray[np.uint8], regions: list[Region], cfg: 'S
     On a textured or cluttered desk a page joins bright patches around it in every whiteness
     mask; those are rarely its own tint as well.
     """
-    min_area = ROUGH_AREA_SLACK * cfg.min_area_frac * work_bgr.shape[0] * work_bgr.shape[1]
     quads: list[Array] = []
     for contour, _ in regions[:COLOUR_SEEDS]:
         seed = np.zeros(work_bgr.shape[:2], np.uint8)
@@ -171,14 +170,7 @@ def colour_quads(work_bgr: npt.NDArray[np.uint8], regions: list[Region], cfg: 'S
         colour = np.median(work_bgr[seed > 0], axis=0).astype(np.int16)
         diff = np.abs(work_bgr.astype(np.int16) - colour).max(axis=2)
         for tol in COLOUR_TOLS:
-            mask = _clean((diff <= tol).astype(np.uint8))
-            for c in cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)[0]:
-                if region_shape(c, min_area, cfg) < cfg.min_solidity:
-                    continue
-                quad = lines.rough_quad(c)
-                if quad is not None and not touches_border(quad, work_bgr.shape) and \
-                        all(np.abs(quad - q).max() > 2.0 for q in quads):
-                    quads.append(quad)
+            _add_quads(quads, _clean((diff <= tol).astype(np.uint8)), work_bgr, cfg)
     return quads
 
 
@@ -190,19 +182,30 @@ def detached_quads(work_bgr: npt.NDArray[np.uint8], cfg: 'SheetConfig') -> list[
     are fitted to its straight sides, not taken from the rounded outline.
     """
     disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (DETACH_PX, DETACH_PX))
-    min_area = ROUGH_AREA_SLACK * cfg.min_area_frac * work_bgr.shape[0] * work_bgr.shape[1]
     quads: list[Array] = []
     for mask in masks(work_bgr, whiteness(work_bgr), cfg):
-        opened = cv2.morphologyEx(mask, cv2.MORPH_OPEN, disc)
-        for c in cv2.findContours(opened, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)[0]:
-            if region_shape(c, min_area, cfg) < cfg.min_solidity:
-                continue
-            quad = lines.rough_quad(c)
-            if quad is not None and not touches_border(quad, work_bgr.shape) and \
-                    all(np.abs(quad - q).max() > 2.0 for q in quads) and \
-                    plausible(work_bgr, c, cfg) is not None:
-                quads.append(quad)
+        _add_quads(quads, cv2.morphologyEx(mask, cv2.MORPH_OPEN, disc), work_bgr, cfg,
+                   plausible_only=True)
     return quads
+
+
+def _add_quads(quads: list[Array], mask: npt.NDArray[np.uint8],
+               work_bgr: npt.NDArray[np.uint8], cfg: 'SheetConfig',
+               plausible_only: bool = False) -> None:
+    """
+    Append to ``quads`` the rough quadrilateral of every sheet-shaped region of ``mask`` not
+    cut by the image border and not already in ``quads`` (``plausible_only``: of
+    ``plausible`` regions only).
+    """
+    min_area = ROUGH_AREA_SLACK * cfg.min_area_frac * work_bgr.shape[0] * work_bgr.shape[1]
+    for c in cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)[0]:
+        if region_shape(c, min_area, cfg) < cfg.min_solidity:
+            continue
+        quad = lines.rough_quad(c)
+        if quad is not None and not touches_border(quad, work_bgr.shape) and \
+                all(np.abs(quad - q).max() > 2.0 for q in quads) and \
+                (not plausible_only or plausible(work_bgr, c, cfg) is not None):
+            quads.append(quad)
 
 
 def pentagons(regions: list[Region]) -> list[Array]:
