@@ -247,12 +247,7 @@ class DenseFusion:
             other = self._frames[s]
             T = dense_stereo.relative_pose(other.pose, kf.pose)  # other camera -> kf camera
             for m in other.depths.values():
-                v, u = np.nonzero(m.depth[::stride, ::stride] > 0)
-                v, u = v * stride, u * stride
-                z = m.depth[v, u].astype(np.float64)
-                K = m.K_rect
-                rect = np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], 1)
-                out.append(rect @ m.R_rect @ T[:3, :3].T + T[:3, 3])
+                out.append(m.points_camera(stride)[0] @ T[:3, :3].T + T[:3, 3])
         return np.concatenate(out) if out else np.zeros((0, 3))
 
     def _depth_range(self, stamps: list[int], i: int, guess: float) -> tuple[float, float]:

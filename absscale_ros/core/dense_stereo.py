@@ -53,9 +53,11 @@ class DepthMap:
     pair_stamp: int  # stamp of the second keyframe
     relative: FloatArray  # (4, 4) T_pair_ref the depth was computed with
 
-    def points_camera(self) -> tuple[FloatArray, npt.NDArray[np.uint8]]:
-        """Valid pixels as (N, 3) points in the keyframe's (unrectified) camera, and colours."""
-        v, u = np.nonzero(self.depth > 0)
+    def points_camera(self, stride: int = 1) -> tuple[FloatArray, npt.NDArray[np.uint8]]:
+        """Valid pixels (every ``stride``-th row and column) as (N, 3) points in the
+        keyframe's (unrectified) camera, and colours."""
+        v, u = np.nonzero(self.depth[::stride, ::stride] > 0)
+        v, u = v * stride, u * stride
         z = self.depth[v, u].astype(np.float64)
         K = self.K_rect
         rect = np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], axis=1)
