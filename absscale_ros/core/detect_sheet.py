@@ -32,6 +32,7 @@ BLUR_MIN_RAMP_PX = 4.0  # a blurred sheet's most smeared side ramps over more (2
 BLUR_RAMP_PX = 8.0  # a ramp this wide (25-75 %) doubles the corner noise the aspect allows
 BLUR_ASPECT_CAP = 2.0  # times ``aspect_tol``: the largest aspect tolerance of a blurred sheet
 LINE_SEGMENTS = 40  # segment lines added to the Hough peaks of the line hypotheses (``quads``)
+SMALL_INSET_PX = 2.0  # work px a region may reach beyond a refined too-small sheet (rough outline)
 STUB_MAX_HYPS = 8  # stub hypotheses refined per frame at most (whitest, longest sides first)
 
 
@@ -228,9 +229,15 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
     work = sheet_candidates.shrink(image_bgr, scale, half)
     found: list[Found] = []
     band = max(6.0, 3.0 / scale)
-    quads_, regions = sheet_candidates.candidates(work, cfg)
-    unfound = _accept_quads(image_bgr, [(q + 0.5) / scale - 0.5 for q in quads_], band, cfg,
-                            K, found, dist)
+    cands = sheet_candidates.Candidates(work, cfg)
+    small: list[Array] = []
+    unfound = _accept_quads(image_bgr, [(q + 0.5) / scale - 0.5 for q in cands.quads], band,
+                            cfg, K, found, dist, small)
+    if not found:  # the colour-edge masks only when the whiteness masks show no sheet
+        unfound += _accept_quads(image_bgr, [(q + 0.5) / scale - 0.5
+                                             for q in cands.edge_quads()], band, cfg, K, found,
+                                 dist, small)
+    regions = cands.regions
     if not found and cfg.line_candidates:
         more = sheet_candidates.colour_quads(work, regions, cfg) + \
             sheet_candidates.detached_quads(work, cfg)
@@ -241,6 +248,8 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
         if line_quads:
             _accept_quads(image_bgr, [q for q, _ in line_quads], line_quads[0][1], cfg, K, found,
                           dist)
+    if not found and small:
+        regions = [r for r in regions if not _whole_small(r[0], small, scale)]
     if not found and cfg.min_seen < 1.0:
         pents = [(p + 0.5) / scale - 0.5 for p in sheet_candidates.pentagons(regions)]
         _accept_partial(image_bgr, [sheet_partial.hypotheses(p, cfg.min_seen) for p in pents],
@@ -303,11 +312,12 @@ def _accept(image_bgr: npt.NDArray[np.uint8], quad_full: Array, band: float, cfg
 
 def _accept_quads(image_bgr: npt.NDArray[np.uint8], quads_full: list[Array], band: float,
                   cfg: SheetConfig, K: Array | None, found: list[Found],
-                  dist: Array | None = None) -> list[Array]:
+                  dist: Array | None = None, small: list[Array] | None = None) -> list[Array]:
     """
     Refine candidates (all at once, ``_refine_quads``); append each that passes every test to
     ``found``, in order. Return those whose sides were not found or not supported (for
-    ``_accept_blurred``).
+    ``_accept_blurred``); append to ``small`` the refined corners of those whose four sides
+    are all supported but which are too small (``_whole_small``).
     """
     # Rough corners: a looser aspect test here, the exact one after refinement.
     quads_full = [q for q in quads_full if _rough_aspect_ok(q, image_bgr.shape, band, cfg, K,
@@ -316,6 +326,8 @@ def _accept_quads(image_bgr: npt.NDArray[np.uint8], quads_full: list[Array], ban
     for quad, refined in zip(quads_full, _refine_quads(image_bgr, quads_full, band)):
         if refined is None or refined[1].min() < cfg.min_support:
             unfound.append(quad)
+        elif small is not None and not sheet_checks.big_enough(refined[0], image_bgr.shape, cfg):
+            small.append(refined[0])
         if refined is None or any(
                 np.hypot(*(quad[:, None] - f[1][None]).T).min(axis=0).max() <= band
                 for f in found):
@@ -327,6 +339,23 @@ def _accept_quads(image_bgr: npt.NDArray[np.uint8], quads_full: list[Array], ban
                 all(np.abs(refined[0] - f[1]).max() > 4.0 for f in found):
             found.append((float(refined[1].mean()), refined[0], refined[0], None))
     return unfound
+
+
+def _whole_small(contour: npt.NDArray[np.int32], small: list[Array], scale: float) -> bool:
+    """
+    Return True when a work-image region lies within (``SMALL_INSET_PX``) one of the ``small``
+    refined quadrilaterals (full px): a whole sheet too small to count, whose hidden-corner
+    hypotheses could only outline the same too small seen part (``big_enough``), so they are
+    not refined (far sheets: most frames of a walk-through).
+    """
+    pts = (contour.reshape(-1, 2) + 0.5) / scale - 0.5
+    for quad in small:
+        centre = quad.mean(axis=0)
+        ls = np.array([lines.line_through(a, b, centre)
+                       for a, b in zip(quad, np.roll(quad, -1, axis=0))])
+        if (pts @ ls[:, :2].T + ls[:, 2]).max() <= SMALL_INSET_PX / scale:
+            return True
+    return False
 
 
 def _rough_aspect_ok(quad: Array, shape: tuple[int, ...], band: float, cfg: SheetConfig,

@@ -71,11 +71,16 @@ def whiteness(image_bgr: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint8]:
 def masks(work_bgr: npt.NDArray[np.uint8], work_white: npt.NDArray[np.uint8],
           cfg: 'SheetConfig') -> list[npt.NDArray[np.uint8]]:
     """
-    Return binary candidate masks on the work image, cleaned (``_clean``).
+    Return binary candidate masks on the work image, cleaned (``_clean``): ``white_masks``
+    then ``edge_masks``.
+    """
+    return white_masks(work_white) + edge_masks(work_bgr, cfg)
 
-    Whiteness above a few thresholds (Otsu and higher ``LEVELS``) finds a sheet that is
-    clearly brighter than its surface; regions enclosed by colour edges (Canny on BGR) find
-    one that differs from the surface mostly in tint, where no grey threshold separates them.
+
+def white_masks(work_white: npt.NDArray[np.uint8]) -> list[npt.NDArray[np.uint8]]:
+    """
+    Whiteness above a few thresholds (Otsu and higher ``LEVELS``), cleaned: a sheet that is
+    clearly brighter than its surface.
     """
     otsu, _ = cv2.threshold(work_white, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
     hist = np.cumsum(cv2.calcHist([work_white], [0], None, [256], [0, 256]).ravel())
@@ -84,19 +89,28 @@ def masks(work_bgr: npt.NDArray[np.uint8], work_white: npt.NDArray[np.uint8],
     # each level's mask is the cleaned mask of that level.
     clean_white = _clean(work_white)
     # (cv2.threshold on uint8 tests > floor(t): the same as > t)
-    masks = [cv2.threshold(clean_white, t, 1, cv2.THRESH_BINARY)[1]
-             for t in (otsu + f * (top - otsu) for f in LEVELS)]
+    return [cv2.threshold(clean_white, t, 1, cv2.THRESH_BINARY)[1]
+            for t in (otsu + f * (top - otsu) for f in LEVELS)]
+
+
+def edge_masks(work_bgr: npt.NDArray[np.uint8], cfg: 'SheetConfig'
+               ) -> list[npt.NDArray[np.uint8]]:
+    """
+    Regions enclosed by colour edges (Canny on BGR), cleaned: a sheet that differs from the
+    surface mostly in tint, where no grey threshold separates them. (The colour Canny is a
+    third of the candidate search: ``candidates`` makes these only when asked.)
+    """
     blurred = cv2.GaussianBlur(work_bgr, (3, 3), 0)
     edges = cv2.Canny(blurred, cfg.canny_low, cfg.canny_high)
     edges = cv2.dilate(edges, np.ones((3, 3), np.uint8))
     free = cv2.threshold(edges, 0, 1, cv2.THRESH_BINARY_INV)[1]
-    masks.append(_clean(free))  # edge-free regions: a sheet's blank areas
+    out = [_clean(free)]  # edge-free regions: a sheet's blank areas
     # Everything the image border cannot reach without crossing an edge: objects on the
     # surface, with their text and drawings filled in.
     flood = np.pad(free, 1, constant_values=1)
     cv2.floodFill(flood, None, (0, 0), 2)
-    masks.append(_clean(cv2.compare(flood[1:-1, 1:-1], 2, cv2.CMP_NE) // 255))
-    return masks
+    out.append(_clean(cv2.compare(flood[1:-1, 1:-1], 2, cv2.CMP_NE) // 255))
+    return out
 
 
 def _clean(mask: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint8]:
@@ -108,51 +122,86 @@ def _clean(mask: npt.NDArray[np.uint8]) -> npt.NDArray[np.uint8]:
     return cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8), iterations=2)
 
 
+class Candidates:
+    """
+    Rough (4, 2) quadrilaterals, work-image px, from the candidate masks, and every large
+    ``plausible`` region, whitest first (for the hidden-corner paths: only needed when no
+    quadrilateral passes). The whiteness masks are searched at once; ``edge_regions`` adds
+    the colour-edge masks' quads (returned, new ones only) and regions, in the mask order of
+    ``masks``: with both, quads and regions are those of all masks searched together.
+    """
+
+    def __init__(self, work_bgr: npt.NDArray[np.uint8], cfg: 'SheetConfig') -> None:
+        self.work_bgr, self.cfg = work_bgr, cfg
+        work_white = whiteness(work_bgr)
+        self.quads: list[Array] = []
+        self._regions: list[Region] = []
+        self._whites: list[float] = []
+        self._edges_done = False
+        self._add(white_masks(work_white), 0)
+
+    def edge_quads(self) -> list[Array]:
+        """Search the colour-edge masks too; return the quads they add."""
+        if self._edges_done:
+            return []
+        self._edges_done = True
+        start = len(self.quads)
+        self._add(edge_masks(self.work_bgr, self.cfg), FREE_MASK)
+        return self.quads[start:]
+
+    @property
+    def regions(self) -> list[Region]:
+        """Every large ``plausible`` region of the masks searched so far, whitest first."""
+        order = np.argsort(-np.array(self._whites), kind='stable')
+        return [self._regions[i] for i in order]  # whitest first: where a sheet is likeliest
+
+    def _add(self, masks_: list[npt.NDArray[np.uint8]], first: int) -> None:
+        work_bgr, cfg, quads = self.work_bgr, self.cfg, self.quads
+        shape = work_bgr.shape[:2]
+        # Opening and the contour through boundary pixel centres shrink a small region by a
+        # pixel all round: a loose test here, the exact one on the refined full-resolution
+        # corners.
+        min_area = ROUGH_AREA_SLACK * cfg.min_area_frac * shape[0] * shape[1]
+        for i, mask in enumerate(masks_, first):
+            contours, tree = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+            # An edge-free region stops short of the outline by the dilated edge's half width.
+            grow = FREE_INSET_PX if i == FREE_MASK else 0.0
+            for c, node in zip(contours, tree[0] if tree is not None else ()):
+                solidity = region_shape(c, min_area, cfg)
+                if solidity < PENT_MIN_SOLIDITY:
+                    continue  # too small, too round or too long, or far from convex
+                # A region the border cuts has a side along it with no edge to refine: not for
+                # the hidden-corner paths (their hypotheses fail or are refused there).
+                x, y, w, h = cv2.boundingRect(c)
+                inner = min(x, y) > 1 and x + w < shape[1] - 1 and \
+                    y + h < shape[0] - 1 and i != QUAD_ONLY_MASK
+                quad = lines.rough_quad(c) if solidity >= cfg.min_solidity else None
+                quad = None if quad is None else offset(quad, grow)
+                # A sheet cut by the image border has no trustworthy corners, and another
+                # mask's outline of a quad already kept is not tested again.
+                new = quad is not None and not touches_border(quad, shape) and \
+                    all(np.abs(quad - q).max() > 2.0 for q in quads)
+                if not (inner or new):
+                    continue  # nothing to use it for: spare the plausibility test
+                white = plausible(work_bgr, c, cfg)
+                if white is None:
+                    continue
+                if inner:
+                    self._regions.append((c, grow))
+                    self._whites.append(white)
+                if new and quad is not None:
+                    quads.append(quad)
+
+
 def candidates(work_bgr: npt.NDArray[np.uint8], cfg: 'SheetConfig'
                ) -> tuple[list[Array], list[Region]]:
     """
-    Return rough (4, 2) quadrilaterals, work-image px, from the candidate masks, and every
-    large ``plausible`` region, whitest first (for the hidden-corner paths: only needed when
-    no quadrilateral passes).
+    Return rough (4, 2) quadrilaterals, work-image px, of all candidate masks, and every
+    large ``plausible`` region, whitest first (``Candidates`` of every mask).
     """
-    work_white = whiteness(work_bgr)
-    # Opening and the contour through boundary pixel centres shrink a small region by a pixel
-    # all round: a loose test here, the exact one on the refined full-resolution corners.
-    min_area = ROUGH_AREA_SLACK * cfg.min_area_frac * work_white.shape[0] * work_white.shape[1]
-    quads: list[Array] = []
-    regions: list[Region] = []
-    whites: list[float] = []
-    for i, mask in enumerate(masks(work_bgr, work_white, cfg)):
-        contours, tree = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-        # An edge-free region stops short of the outline by the dilated edge's half width.
-        grow = FREE_INSET_PX if i == FREE_MASK else 0.0
-        for c, node in zip(contours, tree[0] if tree is not None else ()):
-            solidity = region_shape(c, min_area, cfg)
-            if solidity < PENT_MIN_SOLIDITY:
-                continue  # too small, too round or too long, or far from convex
-            # A region the border cuts has a side along it with no edge to refine: not for the
-            # hidden-corner paths (their hypotheses fail or are refused there).
-            x, y, w, h = cv2.boundingRect(c)
-            inner = min(x, y) > 1 and x + w < work_white.shape[1] - 1 and \
-                y + h < work_white.shape[0] - 1 and i != QUAD_ONLY_MASK
-            quad = lines.rough_quad(c) if solidity >= cfg.min_solidity else None
-            quad = None if quad is None else offset(quad, grow)
-            # A sheet cut by the image border has no trustworthy corners, and another mask's
-            # outline of a quad already kept is not tested again.
-            new = quad is not None and not touches_border(quad, work_white.shape) and \
-                all(np.abs(quad - q).max() > 2.0 for q in quads)
-            if not (inner or new):
-                continue  # nothing to use it for: spare the plausibility test
-            white = plausible(work_bgr, c, cfg)
-            if white is None:
-                continue
-            if inner:
-                regions.append((c, grow))
-                whites.append(white)
-            if new and quad is not None:
-                quads.append(quad)
-    order = np.argsort(-np.array(whites), kind='stable')
-    return quads, [regions[i] for i in order]  # whitest first: where a sheet is likeliest
+    cands = Candidates(work_bgr, cfg)
+    cands.edge_quads()
+    return cands.quads, cands.regions
 
 
 def colour_quads(work_bgr: npt.NDArray[np.uint8], regions: list[Region], cfg: 'SheetConfig'

@@ -1,4 +1,5 @@
 """The detectors' batched steps give what their one-candidate versions give, on rendered frames."""
+import json
 from pathlib import Path
 import sys
 
@@ -79,3 +80,68 @@ def test_auto_mode_shares_the_half_size_image_without_changing_detections():
     assert [d.target_type for d in res.detections] == ['cube', 'sheet']
     for shared, own in zip(res.detections, alone):
         np.testing.assert_array_equal(shared.vertices_px, own.vertices_px)
+
+
+
+SIM_FRAMES = Path(__file__).parents[1] / 'data' / 'sim_frames'
+
+
+def test_candidate_search_in_two_steps_is_the_search_over_every_mask():
+    """Whiteness masks first, colour edges on demand (``Candidates``): together they give the
+    quads and regions of one search over every mask, in its order; a page that differs from
+    the desk in tint only (a yellowish page on a grey desk as bright) comes from the edges."""
+    from absscale_ros.core import sheet_candidates as sc
+    cfg = detect_sheet.SheetConfig(sheet='a4')
+    true_px = st.sheet_corners((640, 360), 300)
+    tint = st.render_sheet(np.random.default_rng(5), true_px, paper_bgr=(170, 205, 215),
+                           desk_bgr=(200, 200, 200))
+    for img in [cv2.imread(str(SIM_FRAMES / n)) for n in
+                ('indoor_paper_1_22.jpg', 'indoor_paper_4d_13.jpg')] + [tint]:
+        work = sc.shrink(img, 480 / 1280)
+        steps = sc.Candidates(work, cfg)
+        n_white = len(steps.quads)
+        added = steps.edge_quads()
+        assert steps.edge_quads() == [] and len(steps.quads) == n_white + len(added)
+        quads, regions = sc.candidates(work, cfg)
+        assert len(quads) == len(steps.quads) and len(regions) == len(steps.regions)
+        for a, b in zip(quads, steps.quads):
+            np.testing.assert_array_equal(a, b)
+        for (a, _), (b, _) in zip(regions, steps.regions):
+            np.testing.assert_array_equal(a, b)
+    true_work = (true_px + 0.5) * 480 / 1280 - 0.5
+    assert not any(np.abs(q - true_work).max() < 3.0 for q in steps.quads[:n_white])
+    assert any(np.abs(np.roll(q, k, axis=0) - true_work).max() < 3.0
+               for q in added for k in range(4))
+
+
+def test_sheet_found_by_whiteness_skips_the_colour_edges(monkeypatch):
+    """A sheet the whiteness masks outline is found without the colour Canny (a third of the
+    candidate search); a frame without a sheet still searches the edges."""
+    from absscale_ros.core import sheet_candidates as sc
+    calls = []
+    edge_masks = sc.edge_masks
+    monkeypatch.setattr(sc, 'edge_masks', lambda *a: calls.append(1) or edge_masks(*a))
+    fr = {f['file']: f for f in json.loads((SIM_FRAMES / 'frames.json').read_text())['frames']}
+    for name, searched in (('indoor_paper_1_22.jpg', []), ('indoor_paper_2_07.jpg', [1])):
+        calls.clear()
+        img = cv2.imread(str(SIM_FRAMES / name))
+        dets = detect_sheet.detect_sheets(img, detect_sheet.SheetConfig(sheet=fr[name]['target']),
+                                          np.array(fr[name]['K']))
+        assert len(dets) == int(not searched) and calls == searched, name
+
+
+def test_whole_sheet_too_small_is_not_retried_with_a_hidden_corner(monkeypatch):
+    """A whole sheet refined on all four sides but under the 0.5 % area: its region would give
+    the hidden-corner paths only the same too small seen part, so none of them refine it."""
+    from absscale_ros.core import sheet_stub
+    true_px = st.sheet_corners((500, 300), 55, aspect=279.4 / 215.9)  # 0.42 % of the image
+    img = st.render_sheet(np.random.default_rng(2), true_px)
+    regions = []
+    first = sheet_stub.first_hypotheses
+    monkeypatch.setattr(sheet_stub, 'first_hypotheses',
+                        lambda r, *a: regions.append(len(r)) or first(r, *a))
+    assert detect_sheet.detect_sheets(img, detect_sheet.SheetConfig(sheet='letter')) == []
+    assert regions == [0]
+    monkeypatch.setattr(detect_sheet, '_whole_small', lambda *a: False)
+    assert detect_sheet.detect_sheets(img, detect_sheet.SheetConfig(sheet='letter')) == []
+    assert regions[1] > 0  # without the test they would
