@@ -42,6 +42,7 @@ PIPELINE: list[tuple[str, str, str]] = [
 ]
 MEMORY_PERIOD_S = 5.0
 KEYFRAMES_TOPIC, KEYFRAME_PATH_TOPIC = '/absscale/keyframes', '/absscale/keyframe_path'
+SFM_STATUS = 'sfm: reconstruction'  # its diagnostics count the keyframes a live SfM skipped
 DRAIN_LIMIT_S = 300.0  # after the bag: the longest wait for the graph to catch up
 STALLED_S = 10.0  # nothing moved this long: the graph is not catching up, stop waiting
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
@@ -196,9 +197,15 @@ def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
                        'steps': replay.steps, 'step_timeouts': replay.timeouts},
             'nodes': node_reports,
             **monitor.report(),
-            'latency_s': _latency(replay.published_at, monitor.cloud_updates),
+            'latency_s': _latency(replay.published_at, monitor.cloud_updates,
+                                  node_reports.get('keyframe_selector', {}).get(
+                                      'keyframe_stamps_ns', []),
+                                  node_reports.get('sfm', {}).pop('timeline_ns', [])),
             'frames_not_processed': _frames_not_processed(len(replay.published_at),
                                                           node_reports),
+            # CPU s per process: which node used the machine (live runs share its cores).
+            'process_cpu_s': {'runner': round(time.process_time(), 2),
+                              **(children.cpu_s if children is not None else {})},
             # ru_maxrss is in KiB on Linux; with --processes this is the runner alone.
             'peak_rss_mb': round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
             'rss_mb': memory,  # [wall s, frames replayed, resident MB] every MEMORY_PERIOD_S
@@ -244,6 +251,7 @@ class _NodeProcesses:
                 env=dict(env, ABSSCALE_REPORT=str(Path(self._dir.name) / f'{name}.json')),
                 stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, preexec_fn=_die_with_parent)
         self._reports: dict[str, Any] | None = None
+        self.cpu_s: dict[str, float | None] = {}  # CPU time of each node's process
 
     def stop(self) -> dict[str, Any]:
         """Interrupt every node (they write their reports) and collect the reports."""
@@ -261,6 +269,7 @@ class _NodeProcesses:
             path = Path(self._dir.name) / f'{name}.json'
             reports[name] = json.loads(path.read_text()) if path.exists() else {
                 'error': f'exit {proc.returncode}: {err.decode(errors="replace")[-500:]}'}
+            self.cpu_s[name] = reports[name].pop('process_cpu_s', None)
         self._dir.cleanup()
         self._reports = reports
         return reports
@@ -333,25 +342,73 @@ def _progress_from_diagnostics(diagnostics: dict[str, dict[str, Any]]
         return 0, None
 
 
-def _latency(published_at: dict[int, int], updates: list[tuple[int, int]]) -> dict[str, Any]:
-    """Seconds from a frame's publication to the /scaled_cloud update stamped with it."""
-    seen = [(stamp, (t - published_at[stamp]) / 1e9) for stamp, t in updates
-            if stamp in published_at]
-    if not seen:
+def _latency(published_at: dict[int, int], updates: list[tuple[int, int]],
+             keyframe_stamps: list[int] = (),
+             sfm_timeline: list[tuple[int, int, int, int]] = ()) -> dict[str, Any]:
+    """
+    Seconds from a keyframe's frame leaving the replay to the first /scaled_cloud update that
+    includes it: stamped with it or, for a keyframe the live SfM skipped for a newer one, with
+    a later keyframe. Only the first update per stamp counts (the scale node republishes the
+    cloud when the path and the new factor follow). Keyframes before the first update (no
+    scale yet) have none; those after it that no update reached are counted as ``never``.
+    ``per_update``: the same for the keyframes an update is stamped with, skipped ones aside.
+    Without keyframe stamps, every update's own keyframe. ``stages``: where it goes, from the
+    live SfM's (stamp, image arrived, update started, ended) per keyframe (see ``_stages``).
+    """
+    first_at: dict[int, int] = {}  # stamp -> first arrival, monotonic ns
+    for stamp, t in updates:
+        if stamp in published_at and stamp not in first_at:
+            first_at[stamp] = t
+    if not first_at:
         return {'updates': 0}
-    lat = [s for _, s in seen]
-    first = min(published_at.values())
+    own = sorted(first_at)
+    wanted = sorted(k for k in keyframe_stamps if k in published_at and k >= own[0]) or own
+    seen, never = [], 0
+    for k in wanted:
+        reached = [t for stamp, t in first_at.items() if stamp >= k]
+        if reached:
+            seen.append((k, (min(reached) - published_at[k]) / 1e9))
+        else:
+            never += 1
+    start = min(published_at.values())
     # (seconds into the replay the frame was published, its latency): where a backlog grows.
-    series = [[round((published_at[stamp] - first) / 1e9, 3), round(s, 3)] for stamp, s in seen]
-    return {'updates': len(lat), 'median': float(np.median(lat)),
-            'p95': float(np.percentile(lat, 95)), 'max': float(np.max(lat)), 'series': series}
+    series = [[round((published_at[k] - start) / 1e9, 3), round(s, 3)] for k, s in seen]
+    lat = [s for _, s in seen]
+    per_update = [(first_at[k] - published_at[k]) / 1e9 for k in own]
+    out = {'updates': len(own), 'keyframes': len(seen), 'never': never,
+           'median': float(np.median(lat)), 'p95': float(np.percentile(lat, 95)),
+           'max': float(np.max(lat)), 'series': series,
+           'per_update': {'median': float(np.median(per_update)),
+                          'p95': float(np.percentile(per_update, 95))}}
+    stages = _stages(published_at, first_at, sfm_timeline)
+    if stages:
+        out['stages'] = stages
+    return out
+
+
+def _stages(published_at: dict[int, int], first_at: dict[int, int],
+            timeline: list[tuple[int, int, int, int]]) -> dict[str, dict[str, float]]:
+    """
+    Median and p95 seconds of each stage of a keyframe's latency: ``to_sfm`` (replay to the
+    SfM: decoding, detection, the selector), ``waiting`` (behind the previous update),
+    ``update`` (the SfM's) and ``to_cloud`` (publishing, the scale node, transport).
+    """
+    rows = [(arrived - published_at[stamp], started - arrived, ended - started,
+             first_at[stamp] - ended) for stamp, arrived, started, ended in timeline
+            if stamp in published_at and stamp in first_at]
+    if not rows:
+        return {}
+    cols = np.array(rows, float).T / 1e9
+    return {name: {'median': round(float(np.median(c)), 3),
+                   'p95': round(float(np.percentile(c, 95)), 3)}
+            for name, c in zip(('to_sfm', 'waiting', 'update', 'to_cloud'), cols)}
 
 
 def _frames_not_processed(frames: int, node_reports: dict[str, Any]) -> dict[str, Any]:
     """
     Per frame-rate node, the bag's frames it lost (live: dropped by sensor-data QoS when
     behind), as a count and a share; frames the detector's live rate cap passed over are
-    counted apart. Offline all are zero.
+    counted apart, and so are the keyframes a live SfM skipped. Offline all are zero.
     """
     handled = {'frame_ingest': 'frames_decoded', 'vertex_detector': 'frames',
                'keyframe_selector': 'frames'}
@@ -366,6 +423,12 @@ def _frames_not_processed(frames: int, node_reports: dict[str, Any]) -> dict[str
         out[node] = {'count': lost, 'share': round(lost / frames, 4)}
         if by_rate:
             out[node]['skipped_by_rate'] = by_rate
+    # Keyframes the live SfM skipped for a newer one (their tracked steps were chained on).
+    sfm, selector = node_reports.get('sfm', {}), node_reports.get('keyframe_selector', {})
+    if sfm.get('keyframes_skipped') and selector.get('keyframes'):
+        n = int(sfm['keyframes_skipped'])
+        out['sfm_keyframes_skipped'] = {'count': n,
+                                        'share': round(n / int(selector['keyframes']), 4)}
     return out
 
 
@@ -387,9 +450,15 @@ def _drain(executor: Any, monitor: GraphMonitorNode, quiet_s: float) -> None:
 
 
 def _sfm_behind(monitor: GraphMonitorNode) -> bool:
-    """Keyframes published that the SfM has not answered with a path yet."""
+    """Keyframes published that the SfM has neither answered with a path nor skipped (live)."""
     counts = monitor.counts
-    return counts.get(KEYFRAMES_TOPIC, 0) > counts.get(KEYFRAME_PATH_TOPIC, 0) > 0
+    values = monitor.diagnostics.get(SFM_STATUS, {}).get('values', {})
+    try:
+        skipped = int(values.get('keyframes_skipped', 0))
+    except ValueError:
+        skipped = 0
+    answered = counts.get(KEYFRAME_PATH_TOPIC, 0)
+    return counts.get(KEYFRAMES_TOPIC, 0) > answered + skipped and answered > 0
 
 
 def _node_report(node: Node) -> dict[str, Any]:

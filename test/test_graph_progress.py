@@ -34,6 +34,22 @@ def test_latency_is_timed_from_each_frames_publication_and_kept_as_a_series() ->
     assert graph._latency(published, []) == {'updates': 0}
 
 
+def test_a_keyframe_the_live_sfm_skipped_waits_for_the_next_update_and_stages_add_up() -> None:
+    published = {10: 1_000_000_000, 20: 2_000_000_000, 30: 3_000_000_000, 40: 4_000_000_000}
+    # Keyframe 20 was skipped: 30's update is the first to hold the map past it. The scale
+    # node republished 30 (path, new factor): only its first update counts. 40: no update.
+    updates = [(10, 1_500_000_000), (30, 3_250_000_000), (30, 3_400_000_000)]
+    timeline = [(10, 1_100_000_000, 1_100_000_000, 1_400_000_000),  # stamp, arrived, start, end
+                (30, 3_050_000_000, 3_100_000_000, 3_200_000_000)]
+    lat = graph._latency(published, updates, [10, 20, 30, 40], timeline)
+    assert lat['updates'] == 2 and lat['keyframes'] == 3 and lat['never'] == 1
+    assert [s for _, s in lat['series']] == [0.5, 1.25, 0.25]
+    assert lat['per_update'] == {'median': 0.375, 'p95': 0.4875}
+    stages = {k: v['median'] for k, v in lat['stages'].items()}
+    assert stages == pytest.approx({'to_sfm': 0.075, 'waiting': 0.025, 'update': 0.2,
+                                    'to_cloud': 0.075})
+
+
 def test_a_step_window_wider_than_the_stamp_pairing_is_refused(tmp_path) -> None:
     """Frames in flight past pair_depth would be decided without their vertices."""
     text = params.find_config('outdoor_cube').read_text()

@@ -18,6 +18,16 @@ RELIABLE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 SENSOR = qos_profile_sensor_data
+LIVE = 'sensor_data'  # the ``qos`` parameter's value of a live run (``absscale run --live``)
+
+
+def live_input(depth: int) -> QoSProfile:
+    """
+    A live node's input between graph nodes: reliable (the publishers are), but only the
+    newest ``depth`` messages are kept, so a node that is behind drops rather than queues.
+    """
+    return QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE,
+                      history=HistoryPolicy.KEEP_LAST)
 
 
 def message_class(msgtype: str) -> Any:
@@ -116,10 +126,13 @@ def _write_report(node: Any) -> None:
     """With ABSSCALE_REPORT set (``absscale run --processes``), leave ``report()`` there."""
     import json
     import os
+    import time
     path = os.environ.get('ABSSCALE_REPORT')
     if path and callable(getattr(node, 'report', None)):
+        # The process's CPU time: which node used the machine (live runs share two cores).
+        report = {**node.report(), 'process_cpu_s': round(time.process_time(), 2)}
         with open(path, 'w') as f:
-            json.dump(node.report(), f, default=str)
+            json.dump(report, f, default=str)
 
 
 def declare_config(node: Node, cfg: Any, prefix: str = '') -> Any:

@@ -25,6 +25,8 @@ import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
+LIVE_DEPTH = 5  # live: frames (and vertex clouds) held at most, 0.17 s at 30 fps
+
 
 class KeyframeSelectorNode(Node):
 
@@ -36,6 +38,10 @@ class KeyframeSelectorNode(Node):
         self._selector = keyframes.KeyframeSelector(keyframes.KeyframeConfig(**values))
         self._use_vertices = self.declare_parameter('use_vertices', True).value
         depth = self.declare_parameter('pair_depth', 10).value
+        live = self.declare_parameter('qos', 'reliable').value == common.LIVE
+        # Live, a selector that is behind drops the oldest frames (counted by `absscale run`)
+        # instead of queueing up to 100 of them (3 s at 30 fps) in front of every keyframe.
+        in_qos = common.live_input(LIVE_DEPTH) if live else common.RELIABLE
         self._pairer: pairing.StampPairer[Image, PointCloud2] = pairing.StampPairer(depth)
         self._camera: Any = None
         self._reasons: Counter[str] = Counter()
@@ -52,9 +58,9 @@ class KeyframeSelectorNode(Node):
         self.create_subscription(CameraInfo, '/absscale/camera_info', self._on_info,
                                  common.RELIABLE)
         self._frames_sub = self.create_subscription(Image, '/absscale/frames', self._on_frame,
-                                                    common.RELIABLE)
+                                                    in_qos)
         self._vert_sub = (self.create_subscription(PointCloud2, '/absscale/vertices',
-                                                   self._on_vertices, common.RELIABLE)
+                                                   self._on_vertices, in_qos)
                           if self._use_vertices else None)
         self.create_timer(1.0, self._publish_diagnostics)
 

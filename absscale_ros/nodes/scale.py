@@ -30,7 +30,7 @@ class ScaleNode(Node):
         p = {x.name: x.value for x in self.declare_parameters('', [
             ('sheet', 'letter'), ('sheet_size_m', [0.0, 0.0]), ('cube_edge_m', 0.8),
             ('frame_id', 'map'), ('min_change', 0.001), ('require_path', False),
-            ('cloud_topic', '/scaled_cloud')])}
+            ('cloud_topic', '/scaled_cloud'), ('qos', 'reliable')])}
         custom = tuple(p['sheet_size_m']) if min(p['sheet_size_m']) > 0 else None
         # 'auto': letter or A4, whichever the reconstructed corners fit (a tie claims nothing).
         sizes = targets.sheet_sizes_m(p['sheet'], custom)
@@ -52,11 +52,12 @@ class ScaleNode(Node):
         self._targets: Any = None
         self._estimated_ns: int | None = None
         self._why_not = 'no target points yet'
+        # Live, only the newest of each: a backlog would only delay the newest keyframe.
+        qos = common.live_input(1) if p['qos'] == common.LIVE else common.RELIABLE
         for topic, cls, cb in (('/absscale/target_points', PointCloud2, self._on_targets),
                                ('/absscale/sparse_cloud', PointCloud2, self._on_cloud),
                                ('/absscale/keyframe_path', Path, self._on_path)):
-            self.create_subscription(cls, topic, lambda m, t=topic, f=cb: f(m, t),
-                                     common.RELIABLE)
+            self.create_subscription(cls, topic, lambda m, t=topic, f=cb: f(m, t), qos)
 
     def _on_targets(self, msg: PointCloud2, topic: str) -> None:
         self._targets = msg

@@ -10,12 +10,16 @@ units), ``/absscale/keyframe_path`` (nav_msgs/Path, T_world_cam per keyframe),
 ``/absscale/target_points`` (x y z object_id vertex_id n_obs angle_deg target_type) and
 ``/diagnostics``. A keyframe's features are detected on a worker thread as soon as its image
 arrives (OpenCV releases the GIL), while its vertices are still on their way or the previous
-keyframe is being added. Parameters: the scalars of ``SfmConfig`` and its stages as ``features.*``,
-``twoview.*``, ``graph.*``, ``vertices.*``, ``local_map.*``, ``cloud.*`` (which landmarks are
-published).
+keyframe is being added. Live (``qos: sensor_data``) the map is updated on a worker thread and
+keyframes do not queue: one that arrives while another waits replaces it (the tracked steps of
+those skipped are chained into the next one's, so its check still holds), and
+``keyframes_skipped`` counts them. Parameters: the scalars of ``SfmConfig`` and its stages as
+``features.*``, ``twoview.*``, ``graph.*``, ``vertices.*``, ``local_map.*``, ``cloud.*`` (which
+landmarks are published), ``qos`` (``reliable``, or ``sensor_data`` live).
 """
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import fields, is_dataclass, replace
+import threading
 import time
 from typing import Any
 
@@ -46,8 +50,10 @@ class SfmNode(Node):
                        for prefix, field in STAGES.items()})
         self._cfg = replace(cfg, **values)
         p = {x.name: x.value for x in self.declare_parameters('', [
-            ('pair_depth', 10), ('seed', 0), ('frame_id', 'map'), ('use_tracked_steps', True)])}
+            ('pair_depth', 10), ('seed', 0), ('frame_id', 'map'), ('use_tracked_steps', True),
+            ('qos', 'reliable')])}
         self._seed, self._frame = p['seed'], p['frame_id']
+        self.live = p['qos'] == common.LIVE
         self._pairer: pairing.StampPairer[Image, PointCloud2] = pairing.StampPairer(
             p['pair_depth'])
         self._step_pairer: pairing.StampPairer[tuple[Image, PointCloud2], TransformStamped] = \
@@ -68,9 +74,20 @@ class SfmNode(Node):
         self._detector = ThreadPoolExecutor(1, 'sfm_features')
         self._prefetched: dict[int, tuple[Any, Future]] = {}  # stamp -> (image, features)
         self.features_prefetched = 0  # keyframes whose features came from the worker
+        # Live: the keyframe waiting for the update worker, and the skipped ones' steps.
+        self._lock = threading.Lock()
+        self._waiting: tuple[Image, PointCloud2, TransformStamped | None] | None = None
+        self._updating = False
+        self._updater = ThreadPoolExecutor(1, 'sfm_update') if self.live else None
+        self._skipped_steps: dict[int, keyframes.TrackedStep | None] = {}
+        self.keyframes_skipped = 0
+        # Live, per keyframe added: stamp, and when (monotonic ns, one clock for all processes)
+        # its image arrived, its update started and ended: where a keyframe's latency goes.
+        self._arrived_ns: dict[int, int] = {}
+        self.timeline_ns: list[tuple[int, int, int, int]] = []
         self._kf_sub = self.create_subscription(
             Image, '/absscale/keyframes', self._on_keyframe, common.RELIABLE,
-            callback_group=group)
+            callback_group=group)  # live too: _offer drops, knowing what it skipped
         self._kv_sub = self.create_subscription(
             PointCloud2, '/absscale/keyframe_vertices', lambda m: self._settle(
                 self._pairer.add_second(conversions.stamp_to_ns(m.header.stamp), m)),
@@ -87,11 +104,16 @@ class SfmNode(Node):
             self.get_logger().warning(f'bad camera_info: {err}', throttle_duration_sec=5.0)
 
     def destroy_node(self) -> None:
+        if self._updater is not None:
+            self._updater.shutdown(wait=True, cancel_futures=True)
         self._detector.shutdown(wait=False, cancel_futures=True)
         super().destroy_node()
 
     def _on_keyframe(self, msg: Image) -> None:
         stamp_ns = conversions.stamp_to_ns(msg.header.stamp)
+        if self.live:
+            with self._lock:
+                self._arrived_ns[stamp_ns] = time.monotonic_ns()
         if self.engine is not None:  # the first keyframe makes the engine (camera) first
             try:
                 image = conversions.image_msg_to_bgr(msg)
@@ -99,10 +121,11 @@ class SfmNode(Node):
                 image = None  # _process says why
             if image is not None and image.shape[:2] == (self.engine.camera.height,
                                                          self.engine.camera.width):
-                self._prefetched[stamp_ns] = (image, self._detector.submit(self.engine.detect,
-                                                                           image))
-                while len(self._prefetched) > 2 * self._pairer.depth + 2:  # never paired
-                    del self._prefetched[min(self._prefetched)]
+                with self._lock:  # live, the update worker takes them
+                    self._prefetched[stamp_ns] = (image, self._detector.submit(
+                        self.engine.detect, image))
+                    while len(self._prefetched) > 2 * self._pairer.depth + 2:  # never paired
+                        self._prefetched.pop(min(self._prefetched))[1].cancel()
         self._settle(self._pairer.add_first(stamp_ns, msg))
 
     def _settle(self, result: pairing.Pairing[Image, PointCloud2]) -> None:
@@ -130,16 +153,78 @@ class SfmNode(Node):
 
     def _handle(self, image: Image, vertices: PointCloud2,
                 motion: TransformStamped | None) -> None:
+        if self.live:
+            self._offer(image, vertices, motion)
+            return
         outputs = self._process(image, vertices, motion)
         self._ack.ack(image.header.stamp, self._kf_sub.topic_name, outputs)
         self._ack.ack(vertices.header.stamp, self._kv_sub.topic_name, outputs)
         if motion is not None:
             self._ack.ack(motion.header.stamp, self._motion_sub.topic_name, outputs)
 
+    def _offer(self, image: Image, vertices: PointCloud2,
+               motion: TransformStamped | None) -> None:
+        """Live: hand a keyframe to the update worker; one still waiting is skipped."""
+        with self._lock:
+            stale, self._waiting = self._waiting, (image, vertices, motion)
+            if stale is not None:
+                self._skip(*stale)
+            if self._updating:
+                return
+            self._updating = True
+        assert self._updater is not None
+        self._updater.submit(self._update_loop)
+
+    def _skip(self, image: Image, vertices: PointCloud2,
+              motion: TransformStamped | None) -> None:
+        """A keyframe the live map will not see: keep its step to chain (under the lock)."""
+        stamp_ns = conversions.stamp_to_ns(image.header.stamp)
+        self.keyframes_skipped += 1
+        entry = self._prefetched.pop(stamp_ns, None)
+        if entry is not None:
+            entry[1].cancel()  # not detected if the detector has not started it
+        try:
+            step = conversions.tracked_step_from_msg(motion) if motion else None
+        except errors.AbsScaleError:
+            step = None
+        self._skipped_steps[stamp_ns] = step
+
+    def _update_loop(self) -> None:
+        """Live: add the waiting keyframe to the map until none waits."""
+        while True:
+            with self._lock:
+                item, self._waiting = self._waiting, None
+                if item is None:
+                    self._updating = False
+                    return
+            stamp_ns = conversions.stamp_to_ns(item[0].header.stamp)
+            started = time.monotonic_ns()
+            try:
+                self._process(*item)
+                with self._lock:
+                    arrived = self._arrived_ns.pop(stamp_ns, started)
+                    for old in [s for s in self._arrived_ns if s < stamp_ns]:
+                        del self._arrived_ns[old]
+                self.timeline_ns.append((stamp_ns, arrived, started, time.monotonic_ns()))
+            except Exception as err:  # noqa: BLE001 (a worker's exception would vanish)
+                self.get_logger().error(f'keyframe update failed: {err!r}')
+
+    def _bridge(self, stamp_ns: int, step: keyframes.TrackedStep | None
+                ) -> keyframes.TrackedStep | None:
+        """Live: the step from the last keyframe the map saw, over the skipped ones."""
+        with self._lock:
+            while step is not None and step.ref_stamp_ns in self._skipped_steps:
+                earlier = self._skipped_steps.pop(step.ref_stamp_ns)
+                step = None if earlier is None else keyframes.chain(earlier, step)
+            for old in [s for s in self._skipped_steps if s < stamp_ns]:
+                del self._skipped_steps[old]
+        return step
+
     def _process(self, image_msg: Image, vertices_msg: PointCloud2,
                  motion_msg: TransformStamped | None) -> list[str]:
         stamp_ns = conversions.stamp_to_ns(image_msg.header.stamp)
-        image, features = self._prefetched.pop(stamp_ns, (None, None))
+        with self._lock:
+            image, features = self._prefetched.pop(stamp_ns, (None, None))
         try:
             image = conversions.image_msg_to_bgr(image_msg) if image is None else image
             rows = conversions.cloud_msg_to_array(vertices_msg)
@@ -147,6 +232,8 @@ class SfmNode(Node):
         except errors.AbsScaleError as err:
             self.get_logger().warning(f'keyframe dropped: {err}', throttle_duration_sec=5.0)
             return []
+        if self.live:
+            step = self._bridge(stamp_ns, step)
         if self.engine is None:
             h, w = image.shape[:2]
             camera = self._camera if self._camera is not None and \
@@ -201,11 +288,16 @@ class SfmNode(Node):
         """
         times = np.array(self._times_ms or [np.nan])
         out: dict[str, Any] = {'keyframes_in': len(self._times_ms), 'keyframes_registered': 0,
+                               'keyframes_skipped': self.keyframes_skipped,
                                'segments': 0, 'landmarks': 0, 'target_vertices': 0,
                                'reprojection_rms_px': float('nan'),
                                'update_ms_median': float(np.median(times)),
                                'update_ms_p95': float(np.percentile(times, 95)),
                                'statuses': dict(self.statuses)}
+        if full_rms:  # the whole run (not in every keyframe's diagnostics)
+            out['update_ms'] = [round(t, 1) for t in self._times_ms]
+            if self.live:
+                out['timeline_ns'] = list(self.timeline_ns)
         if self.engine is not None:
             seg = sfm_outputs.best_segment(self.engine)
             m = seg.map

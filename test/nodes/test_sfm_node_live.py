@@ -1,0 +1,66 @@
+"""A live sfm node that is behind: keyframes do not queue, the newest one is taken."""
+from pathlib import Path
+import sys
+import threading
+
+from absscale_ros import conversions
+from absscale_ros.core import sfm
+from absscale_ros.nodes.sfm import SfmNode
+import numpy as np
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from ros_helpers import spin_until
+from test_sfm_node import _rows, _tracked, OUTPUTS, Probe
+
+sys.path.insert(0, str(Path(__file__).parents[1] / 'core'))
+import sfm_scenes  # noqa: E402
+
+
+def test_a_live_sfm_behind_takes_the_newest_keyframe_and_chains_the_skipped_steps(
+        context, monkeypatch) -> None:
+    seq = sfm_scenes.make_sequence('indoor_paper', 1, count=6)
+    stamps = [(k + 1) * 100_000_000 for k in range(len(seq.images_bgr))]
+    # The first update holds until every keyframe has arrived: the node is behind for sure.
+    release, steps = threading.Event(), {}
+    add_keyframe = sfm.IncrementalSfm.add_keyframe
+
+    def slow_add(engine, stamp_ns, image, vertices=None, step=None, features=None):
+        release.wait(timeout=30.0)
+        steps[stamp_ns] = step
+        return add_keyframe(engine, stamp_ns, image, vertices, step, features)
+
+    monkeypatch.setattr(sfm.IncrementalSfm, 'add_keyframe', slow_add)
+    node = SfmNode(context=context, parameter_overrides=[Parameter('qos', value='sensor_data')])
+    probe = Probe(context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    executor.add_node(probe)
+    try:
+        assert spin_until(executor, lambda: probe.kf.get_subscription_count() > 0)
+        rng = np.random.default_rng(5)
+        for k, image in enumerate(seq.images_bgr):
+            probe.send(seq.camera, stamps[k], image, _rows(sfm_scenes.detections(seq, k, rng)[0]),
+                       _tracked(seq, k, stamps))
+        # Keyframe 0 is being added; 1-4 were each replaced by a newer one while waiting.
+        assert spin_until(executor, lambda: node.keyframes_skipped == 4, timeout_s=30.0)
+        release.set()
+        assert spin_until(executor, lambda: len(probe.got[OUTPUTS[1]]) == 2, timeout_s=30.0)
+        spin_until(executor, lambda: False, timeout_s=0.5)  # nothing else comes
+    finally:
+        release.set()
+        executor.shutdown()
+        node.destroy_node()
+    for topic in OUTPUTS:  # the map answered keyframe 0 and then the newest
+        assert [conversions.stamp_to_ns(m.header.stamp) for m in probe.got[topic]] == \
+            [stamps[0], stamps[-1]]
+    assert sorted(steps) == [stamps[0], stamps[-1]] and steps[stamps[0]] is None
+    # The newest keyframe's tracked step starts at keyframe 0: the five steps chained.
+    step = steps[stamps[-1]]
+    rel = np.linalg.inv(seq.T_world_cams[0]) @ seq.T_world_cams[-1]
+    assert step.ref_stamp_ns == stamps[0]
+    assert np.allclose(step.rotation, rel[:3, :3].T, atol=1e-6)
+    assert np.allclose(step.centre, rel[:3, 3], atol=1e-6)
+    r = node.report()
+    assert r['keyframes_in'] == 2 and r['keyframes_skipped'] == 4
+    values = conversions.diagnostic_values(probe.diags[-1].status[0])
+    assert values['keyframes_skipped'] == '4'  # the user sees it
