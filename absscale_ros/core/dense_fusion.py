@@ -43,6 +43,7 @@ class FusionConfig:
     outlier_neighbours: int = 16  # statistical outlier removal: neighbours considered
     outlier_std: float = 2.0  # ... and the mean-distance threshold, in standard deviations
     normal_neighbours: int = 20  # points used for a normal
+    move_voxels: float = 0.25  # a keyframe whose new pose moves its points less stays fused
 
 
 @dataclass
@@ -54,6 +55,8 @@ class _Keyframe:
     cloud: Any = None  # cached open3d cloud in the camera frame (None: to be rebuilt)
     view: Any = None  # (bgr, grey, K) undistorted at the sweep's scale, made when first swept
     swept_with: dict[int, FloatArray] = field(default_factory=dict)  # neighbour -> T_nb_kf
+    placed: FloatArray | None = None  # the pose its cloud is in the fused voxels with
+    reach: float = 0.0  # farthest point of its cloud from the camera, m
 
 
 def _angle_deg(a: FloatArray, b: FloatArray) -> float:
@@ -77,6 +80,7 @@ class DenseFusion:
         self.sweeps_computed = 0  # plane sweeps run so far
         self.backlog = False  # depth maps left for later by the per-update budget
         self._poses: dict[int, FloatArray] = {}
+        self._voxels = dense_cloud.VoxelSums(fusion.voxel_m)
 
     def add_keyframe(self, stamp_ns: int, image_bgr: np.ndarray, camera: CameraModel) -> None:
         """Keep a keyframe (at the working scale) until its pose is known."""
@@ -106,11 +110,12 @@ class DenseFusion:
         for i, s in enumerate(stamps):
             kf = self._frames[s]
             if not kf.depths:
-                kf.cloud = None
+                kf.cloud, kf.placed = None, None
             elif outcome[i] == _NEW or kf.cloud is None:
-                kf.cloud = self._keyframe_cloud(stamps, i)
+                kf.cloud, kf.placed = self._keyframe_cloud(stamps, i), None
             elif outcome[i] != 1.0:
                 kf.cloud.scale(outcome[i], np.zeros(3))  # a new scale: depth x baseline ratio
+                kf.placed = None
         self._stamps = stamps
         return moved or any(o != 1.0 for o in outcome)
 
@@ -247,7 +252,8 @@ class DenseFusion:
             other = self._frames[s]
             T = dense_stereo.relative_pose(other.pose, kf.pose)  # other camera -> kf camera
             for m in other.depths.values():
-                out.append(m.points_camera(stride)[0] @ T[:3, :3].T + T[:3, 3])
+                out.append(dense_stereo.transform(m.points_camera(stride)[0], T[:3, :3],
+                                                  T[:3, 3]))
         return np.concatenate(out) if out else np.zeros((0, 3))
 
     def _depth_range(self, stamps: list[int], i: int, guess: float) -> tuple[float, float]:
@@ -286,11 +292,11 @@ class DenseFusion:
         keep_pts, keep_col = [], []
         for side, own in sorted(kf.depths.items()):  # the sweep (2) after the pairs
             pts, colours = own.points_camera()
-            world = pts @ kf.pose[:3, :3].T + kf.pose[:3, 3]
+            world = dense_stereo.transform(pts, kf.pose[:3, :3], kf.pose[:3, 3])
             if side == SWEEP:  # only where no pair of this keyframe has depth
                 free = np.ones(len(pts), bool)
                 for m in pairs:
-                    free &= ~agreeing(world, kf.pose, m, np.inf)[0]
+                    free[_agreeing_index(world, kf.pose, m, np.inf)[0]] = False
                 pts, colours, world = pts[free], colours[free], world[free]
             votes = np.zeros(len(pts), np.int32)
             total, weight = world.copy(), np.ones(len(pts))
@@ -299,30 +305,55 @@ class DenseFusion:
                 # averaging independent pairs shrinks SGBM's sub-pixel noise. A coarser
                 # sweep only votes for a pair's points (those still short of votes).
                 mean = self.cfg.average and (side == SWEEP or not swept)
-                short = votes < self.cfg.min_consistent
-                if m is own or not (mean or np.any(short)):
+                if m is own:
                     continue
                 if mean:
-                    ok, ratio = agreeing(world, pose, m, self.cfg.consistency_rel)
-                    total[ok] += pose[:3, 3] + (world[ok] - pose[:3, 3]) * ratio[ok, None]
-                    weight += ok
+                    idx, ratio = _agreeing_index(world, pose, m, self.cfg.consistency_rel)
+                    total[idx] += pose[:3, 3] + (world[idx] - pose[:3, 3]) * ratio[:, None]
+                    weight[idx] += 1.0
                 else:
-                    ok = np.zeros(len(world), bool)
-                    ok[short] = agreeing(world[short], pose, m, self.cfg.consistency_rel)[0]
-                votes += ok
+                    short = np.flatnonzero(votes < self.cfg.min_consistent)
+                    if not len(short):
+                        continue
+                    idx = short[_agreeing_index(world[short], pose, m,
+                                                self.cfg.consistency_rel)[0]]
+                votes[idx] += 1
             keep = votes >= self.cfg.min_consistent
             if self.cfg.average:
                 world = total / weight[:, None]
-                pts = (world - kf.pose[:3, 3]) @ kf.pose[:3, :3]
+                pts = dense_stereo.transform(world - kf.pose[:3, 3], kf.pose[:3, :3].T)
             keep_pts.append(pts[keep])
             keep_col.append(colours[keep])
         return dense_cloud.clean(np.concatenate(keep_pts), np.concatenate(keep_col), self.cfg)
 
     def cloud(self) -> tuple[FloatArray, npt.NDArray[np.uint8], FloatArray]:
-        """The fused cloud in the world frame: (N, 3) metres, (N, 3) rgb, (N, 3) unit normals."""
-        parts = [(self._frames[s].cloud, self._frames[s].pose) for s in self._stamps
-                 if self._frames[s].cloud is not None]
-        return dense_cloud.fuse(parts, self.cfg.voxel_m)
+        """
+        The fused cloud in the world frame: (N, 3) metres, (N, 3) rgb, (N, 3) unit normals.
+
+        Incremental: only keyframes whose cloud is new or rescaled, or whose pose moved their
+        points by more than ``move_voxels`` voxels, are put into the voxels again.
+        """
+        live = set()
+        for s in getattr(self, '_stamps', []):
+            kf = self._frames[s]
+            if kf.cloud is None:
+                continue
+            live.add(s)
+            if kf.placed is None or self._moves(kf) > self.cfg.move_voxels * self.cfg.voxel_m:
+                self._voxels.set(s, kf.cloud, kf.pose)
+                kf.placed = kf.pose.copy()
+                kf.reach = float(np.max(np.linalg.norm(np.asarray(kf.cloud.points), axis=1),
+                                        initial=0.0))
+        for s in set(self._voxels.parts) - live:
+            self._voxels.remove(s)
+        return self._voxels.cloud()
+
+    @staticmethod
+    def _moves(kf: _Keyframe) -> float:
+        """How far at most the pose moved any point of the keyframe from where it is fused."""
+        step = float(np.linalg.norm(kf.pose[:3, 3] - kf.placed[:3, 3]))
+        turn = np.radians(_rotation_deg(kf.pose[:3, :3] @ kf.placed[:3, :3].T))
+        return step + turn * kf.reach
 
     @property
     def pairs(self) -> list[tuple[int, int]]:
@@ -342,19 +373,30 @@ def agreeing(world: FloatArray, T_world_cam: FloatArray, depth: dense_stereo.Dep
     Which world points the depth map of another keyframe sees at the same depth, and the
     ratio of its depth to theirs along its rays (valid where they agree).
     """
+    idx, ratio = _agreeing_index(world, T_world_cam, depth, tolerance_rel)
+    ok = np.zeros(len(world), bool)
+    ok[idx] = True
+    out = np.ones(len(world), np.float32)
+    out[idx] = ratio
+    return ok, out
+
+
+def _agreeing_index(world: FloatArray, T_world_cam: FloatArray, depth: dense_stereo.DepthMap,
+                    tolerance_rel: float) -> tuple[npt.NDArray[np.intp], FloatArray]:
+    """``agreeing`` as the indices of the agreeing points and their ratios (the fusion's
+    inner loop: only the points in front of the other camera are carried on)."""
     R = depth.R_rect @ T_world_cam[:3, :3].T
-    p = (world - T_world_cam[:3, 3]) @ R.T
+    p = dense_stereo.transform(world - T_world_cam[:3, 3], depth.K_rect @ R)  # u z, v z, z
+    idx = np.flatnonzero(p[:, 2] > 1e-6)
+    p = p[idx]
     z = p[:, 2]
-    ok = z > 1e-6
-    uv = np.full((len(p), 2), -1, np.int64)
-    uv[ok] = np.round(p[ok, :2] / z[ok, None] * np.diag(depth.K_rect)[:2]
-                      + depth.K_rect[:2, 2]).astype(np.int64)
     h, w = depth.depth.shape
-    ok &= (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
-    seen = np.zeros(len(p), np.float32)
-    seen[ok] = depth.depth[uv[ok, 1], uv[ok, 0]]
-    ok &= (seen > 0) & (np.abs(seen - z) <= tolerance_rel * z)
-    return ok, np.where(ok, seen / np.maximum(z, 1e-6), 1.0).astype(np.float32)
+    u, v = np.rint(p[:, 0] / z), np.rint(p[:, 1] / z)
+    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    idx, z = idx[inside], z[inside]
+    seen = depth.depth[v[inside].astype(np.intp), u[inside].astype(np.intp)]
+    good = (seen > 0) & (np.abs(seen - z) <= tolerance_rel * z)
+    return idx[good], seen[good] / z[good]
 
 
 def pose_matrices(poses_xyzw: FloatArray, stamps_ns: npt.ArrayLike) -> dict[int, FloatArray]:

@@ -61,7 +61,19 @@ class DepthMap:
         z = self.depth[v, u].astype(np.float64)
         K = self.K_rect
         rect = np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], axis=1)
-        return rect @ self.R_rect, self.colour[v, u]
+        return transform(rect, self.R_rect.T), self.colour[v, u]
+
+
+def transform(points: FloatArray, A: FloatArray, b: FloatArray | None = None) -> FloatArray:
+    """
+    ``points @ A.T + b`` for (..., 3) points, column by column: numpy hands a product to
+    its threaded BLAS, whose threads spin on a loaded machine (a 115k x 3 by 3 x 3 product
+    took 31 ms of CPU at load 10 instead of 0.7 ms on one thread).
+    """
+    out = points[..., 0:1] * A[:, 0] + points[..., 1:2] * A[:, 1] + points[..., 2:3] * A[:, 2]
+    if b is not None:
+        out += b
+    return out
 
 
 def working_image(image: np.ndarray, camera: CameraModel,

@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from absscale_ros.core import dense_stereo
 from absscale_ros.core.types import CameraModel
 
 FloatArray = npt.NDArray[np.float64]
@@ -183,7 +184,8 @@ def dominant_plane(points: FloatArray, cfg: SweepConfig,
         n = np.cross(points[b] - points[a], points[c] - points[a])
         if np.linalg.norm(n) < 1e-12:
             continue
-        inside = np.abs((points - points[a]) @ (n / np.linalg.norm(n))) <= tolerance
+        along = dense_stereo.transform(points - points[a], n[None, :] / np.linalg.norm(n))
+        inside = np.abs(along[:, 0]) <= tolerance
         if inside.sum() > best_in.sum():
             best, best_in = n, inside
     if best is None or best_in.sum() < cfg.plane_min_share * len(points):
@@ -233,7 +235,7 @@ def precise(depth: Image32, K: FloatArray, centres: list[FloatArray], max_baseli
     unit = rays / length[..., None]
     across = np.zeros((h, w))
     for c in centres:
-        along = unit @ c
+        along = dense_stereo.transform(unit, c[None, :])[..., 0]
         across = np.maximum(across, np.sqrt(np.maximum(c @ c - along * along, 0.0)))
     ok = depth * length <= max_baselines * across
     if max_step_m > 0.0:

@@ -1,6 +1,6 @@
 """Dense stereo and fusion on rendered keyframes with exact poses, against the scene mesh."""
 
-from absscale_ros.core import dense_fusion, dense_stereo, dense_sweep
+from absscale_ros.core import dense_cloud, dense_fusion, dense_stereo, dense_sweep
 from dense_scenes import forward_keyframes, forward_walk, grazing_keyframes, \
     sideways_keyframes
 import numpy as np
@@ -181,3 +181,64 @@ def test_depth_edges_drop_the_spill_beside_an_outline_not_a_slanted_ground() -> 
     # The ground's smooth 3 % per row is no edge; the box's outline is, 3 px either side.
     assert not edges[:, :40].any() and not edges[:30, :].any()
     assert edges[50, 46:54].all() and not edges[50, 45] and not edges[50, 54:66].any()
+
+
+def test_a_pose_nudged_less_than_a_quarter_voxel_is_not_fused_again() -> None:
+    _, cam, poses, mesh = sideways_keyframes()
+    fusion = _fused(poses)
+    before = fusion.cloud()
+    # The SfM re-estimates every pose a little with each keyframe: 1 mm and 0.001 degrees
+    # leave the fused voxels as they are (incremental fusion), bit for bit.
+    nudged = [T.copy() for T in poses]
+    for T in nudged:
+        T[:3, 3] += 0.001 * np.array([0.6, 0.0, 0.8])
+    nudged[2][:3, :3] = dense_fusion.pose_matrices(np.array([[0, 0, 0, 0, np.sin(
+        np.radians(0.0005)), 0, np.cos(np.radians(0.0005))]]), [0])[0][:3, :3] @ poses[2][:3, :3]
+    _fused(nudged, fusion)
+    after = fusion.cloud()
+    assert all(np.array_equal(a, b) for a, b in zip(before, after))
+    # A keyframe moved 5 cm is fused again where its new pose puts it: the running sums are
+    # those of fusing every keyframe's points at its pose from scratch.
+    moved = [T.copy() for T in nudged]
+    moved[4][:3, 3] += [0.05, 0.0, 0.0]
+    _fused(moved, fusion)
+    xyz, _, _ = fusion.cloud()
+    scratch = dense_cloud.VoxelSums(FUSION.voxel_m)
+    for k, T in enumerate(moved):
+        kf = fusion._frames[k]
+        # Where each keyframe is fused: its first pose, or its latest if it was rebuilt or moved
+        assert np.array_equal(kf.placed, T if k == 4 else kf.placed) and (
+            np.array_equal(kf.placed, poses[k]) or np.array_equal(kf.placed, T))
+        scratch.set(k, kf.cloud, kf.placed)
+    redone, _, _ = scratch.cloud()
+    assert len(xyz) == len(redone) and np.allclose(xyz, redone, atol=1e-9)
+
+
+def test_voxel_sums_are_the_voxel_means_of_the_parts_held() -> None:
+    rng = np.random.default_rng(0)
+    parts = []
+    for k in range(3):
+        pts = rng.uniform(-1.0, 1.0, (2000, 3))
+        nrm = np.tile([0.0, 0.0, 1.0], (len(pts), 1))
+        parts.append(dense_cloud.clean(pts, rng.integers(0, 255, (len(pts), 3), np.uint8),
+                                       FUSION))
+        parts[-1].normals = dense_cloud.o3d.utility.Vector3dVector(nrm[:len(parts[-1].points)])
+    voxels = dense_cloud.VoxelSums(0.1)
+    T = np.eye(4)
+    T[:3, 3] = [0.3, -0.2, 5.0]
+    for k, pc in enumerate(parts):
+        voxels.set(k, pc, np.eye(4))
+    voxels.set(1, parts[1], T)  # replaced: moved
+    voxels.remove(2)
+    xyz, rgb, normals = voxels.cloud()
+    world = np.concatenate([np.asarray(parts[0].points), np.asarray(parts[1].points) + T[:3, 3]])
+    cells = np.floor(world / 0.1)
+    unique, inverse = np.unique(cells, axis=0, return_inverse=True)
+    means = np.stack([np.bincount(inverse.ravel(), world[:, c]) for c in range(3)], 1) \
+        / np.bincount(inverse.ravel())[:, None]
+    assert voxels.parts == [0, 1] and len(xyz) == len(unique)
+    assert np.allclose(np.sort(xyz, 0), np.sort(means, 0), atol=1e-12)
+    assert np.allclose(normals, [0.0, 0.0, 1.0]) and rgb.dtype == np.uint8
+    pts = rng.normal(size=(50, 3))
+    A = rng.normal(size=(3, 3))
+    assert np.allclose(dense_stereo.transform(pts, A, A[0]), pts @ A.T + A[0], atol=1e-12)
