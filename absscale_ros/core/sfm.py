@@ -51,6 +51,10 @@ class SfmConfig:
     # a repeated texture (pavers) matched one period off moves the pose by that period.
     max_velocity_change: float = 1.2  # (0: off; a reversal at equal speed is 2, a right turn 1.4)
     motion_check_s: float = 1.0
+    # ... unless both steps are shorter than this share of the segment's median step: a camera
+    # nearly still moves by pose noise, which reverses its velocity at random (the 60 s bag's
+    # standstills broke its segments at 75 keyframes); an aliased pose jumps a texture period.
+    slow_step_share: float = 0.3
     # A pose that the correspondences off their dominant plane support less than this share
     # as well as those on it (their inlier rates) is refused, given ``min_off_plane`` of them:
     # the texture's plane carries an aliased pose, the rest of the scene does not (0: off).
@@ -69,8 +73,8 @@ class SfmConfig:
         if self.match_window < 1 or self.relocalise_window < self.match_window or \
                 self.min_pnp_inliers < 6 or self.pnp_px <= 0.0 or self.max_pending < 2 or \
                 min(self.max_velocity_change, self.motion_check_s, self.min_off_plane_support,
-                    self.plane_tol, self.plane_check_px) < 0.0 or self.min_off_plane < 1 \
-                or not 0.0 < self.max_tracked_angle_deg <= 180.0:
+                    self.slow_step_share, self.plane_tol, self.plane_check_px) < 0.0 or \
+                self.min_off_plane < 1 or not 0.0 < self.max_tracked_angle_deg <= 180.0:
             raise ValueError(f'bad sfm config {self}')
 
 
@@ -293,12 +297,18 @@ class IncrementalSfm:
         off = self._off_track(m, kf)
         if off is not None:
             return off
-        prev = [m.keyframes[i] for i in sorted(m.keyframes)[-2:]] + [kf]
-        if len(prev) < 3 or self.cfg.max_velocity_change <= 0.0:
+        ids = sorted(m.keyframes)
+        if len(ids) < 2 or self.cfg.max_velocity_change <= 0.0:
             return disowned
+        path = np.array([m.keyframes[i].T_world_cam[:3, 3] for i in ids])
+        steps = np.linalg.norm(np.diff(path, axis=0), axis=1)
+        centres = np.vstack([path[-2:], kf.T_world_cam[:3, 3]])
+        newest = float(np.linalg.norm(centres[2] - centres[1]))
+        if max(newest, steps[-1]) < self.cfg.slow_step_share * float(np.median(steps)):
+            return disowned  # two short steps: pose noise, not a jump
         return aliasing.velocity_reason(
-            np.array([k.T_world_cam[:3, 3] for k in prev]),
-            np.array([k.stamp_ns for k in prev], np.int64), self.cfg.max_velocity_change,
+            centres, np.array([m.keyframes[ids[-2]].stamp_ns, m.keyframes[ids[-1]].stamp_ns,
+                               kf.stamp_ns], np.int64), self.cfg.max_velocity_change,
             self.cfg.motion_check_s) or disowned
 
     def _off_track(self, m: sfm_map.SfmMap, kf: sfm_map.MapKeyframe) -> str | None:

@@ -201,10 +201,10 @@ class SfmMap:
             uvs = [lms[i].obs_px[k] for i, k in pairs]
         if not uvs:
             return lm_ids, kf_ids, np.zeros(0)
-        # One pose and one point per observation, gathered by id through sorted id arrays.
-        kf_all = np.array(sorted(self.keyframes), np.int64)
-        T = np.array([self.keyframes[i].T_world_cam for i in kf_all.tolist()])
-        T = T[np.searchsorted(kf_all, kf_ids)]
+        # One pose and one point per observation, gathered by id through sorted id arrays (only
+        # the keyframes observed: stacking every pose made a subset's call grow with the map).
+        kf_uniq, kf_inv = np.unique(kf_ids, return_inverse=True)
+        T = np.array([self.keyframes[i].T_world_cam for i in kf_uniq.tolist()])[kf_inv]
         uniq, inv = np.unique(lm_ids, return_inverse=True)
         pts = np.array([lms[i].point_world for i in uniq.tolist()]).reshape(-1, 3)[inv]
         p_cam = np.einsum('nji,nj->ni', T[:, :3, :3], pts - T[:, :3, 3])

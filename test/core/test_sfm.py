@@ -243,6 +243,23 @@ def test_velocity_reversal_is_implausible(outdoor_orbit) -> None:
     assert aliasing.velocity_reason(jumped, 10 * stamps, 1.2, 1.0) is None  # 2 s: may turn back
 
 
+def test_a_camera_standing_still_keeps_registering(outdoor_orbit) -> None:
+    # Keyframes of a still camera (the same view, new sensor noise) move by pose noise only,
+    # which reverses the velocity at random: it is not an aliased jump (this refused keyframes
+    # and broke the 60 s bag's segments at its standstills).
+    seq, rng = outdoor_orbit, np.random.default_rng(0)
+    engine = sfm.IncrementalSfm(seq.camera, sfm.SfmConfig(), np.random.default_rng(7))
+    order = [0, 1, 2, 3, 4, 5, 5, 5, 5, 6, 7, 8, 9]
+    results = []
+    for n, k in enumerate(order):
+        img = seq.images_bgr[k]
+        if n and order[n - 1] == k:
+            img = np.clip(img + rng.normal(0.0, 2.0, img.shape), 0, 255).astype(np.uint8)
+        results.append(engine.add_keyframe(n * 100_000_000, img))
+    assert [r.status for r in results[2:]] == ['registered'] * (len(order) - 2)
+    assert results[-1].segments == 1 and results[-1].keyframes == len(order)
+
+
 def test_pose_against_the_tracked_step_is_refused(outdoor_orbit) -> None:
     # The selector's tracked steps (here the true ones) let every true pose through; a step
     # tracked the opposite way of the pose PnP finds refuses it (what an aliased pose is).
