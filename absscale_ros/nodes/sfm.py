@@ -13,9 +13,10 @@ arrives (OpenCV releases the GIL), while its vertices are still on their way or 
 keyframe is being added. Live (``qos: sensor_data``) the map is updated on a worker thread and
 keyframes do not queue: one that arrives while another waits replaces it (the tracked steps of
 those skipped are chained into the next one's, so its check still holds), and
-``keyframes_skipped`` counts them. Parameters: the scalars of ``SfmConfig`` and its stages as
-``features.*``, ``twoview.*``, ``graph.*``, ``vertices.*``, ``local_map.*``, ``cloud.*`` (which
-landmarks are published), ``qos`` (``reliable``, or ``sensor_data`` live).
+``keyframes_skipped`` counts them; the periodic batch adjustment waits until a keyframe's map
+is published and no other keyframe waits. Parameters: the scalars of ``SfmConfig`` and its
+stages as ``features.*``, ``twoview.*``, ``graph.*``, ``vertices.*``, ``local_map.*``,
+``cloud.*`` (which landmarks are published), ``qos`` (``reliable``, or ``sensor_data`` live).
 """
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import fields, is_dataclass, replace
@@ -35,7 +36,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 STAGES = {'features': 'feature_cfg', 'twoview': 'twoview_cfg', 'graph': 'graph_cfg',
           'vertices': 'vertex_cfg', 'local_map': 'local_cfg',
-          'cloud': 'cloud_cfg'}  # parameter prefix -> SfmConfig field
+          'cloud': 'cloud_cfg', 'refine': 'refine_cfg'}  # parameter prefix -> SfmConfig field
 
 
 class SfmNode(Node):
@@ -85,6 +86,7 @@ class SfmNode(Node):
         # its image arrived, its update started and ended: where a keyframe's latency goes.
         self._arrived_ns: dict[int, int] = {}
         self.timeline_ns: list[tuple[int, int, int, int]] = []
+        self.batch_ms: list[float] = []  # live: the deferred batch adjustments
         self._kf_sub = self.create_subscription(
             Image, '/absscale/keyframes', self._on_keyframe, common.RELIABLE,
             callback_group=group)  # live too: _offer drops, knowing what it skipped
@@ -190,13 +192,22 @@ class SfmNode(Node):
         self._skipped_steps[stamp_ns] = step
 
     def _update_loop(self) -> None:
-        """Live: add the waiting keyframe to the map until none waits."""
+        """
+        Live: add the waiting keyframe to the map until none waits; then the batch adjustment
+        its update left out, if due (seconds, which no keyframe waits behind unless it comes
+        meanwhile), and look again.
+        """
         while True:
             with self._lock:
                 item, self._waiting = self._waiting, None
-                if item is None:
-                    self._updating = False
-                    return
+            if item is None:
+                if self._adjust_if_due():
+                    continue
+                with self._lock:
+                    if self._waiting is None:
+                        self._updating = False
+                        return
+                continue
             stamp_ns = conversions.stamp_to_ns(item[0].header.stamp)
             started = time.monotonic_ns()
             try:
@@ -208,6 +219,18 @@ class SfmNode(Node):
                 self.timeline_ns.append((stamp_ns, arrived, started, time.monotonic_ns()))
             except Exception as err:  # noqa: BLE001 (a worker's exception would vanish)
                 self.get_logger().error(f'keyframe update failed: {err!r}')
+
+    def _adjust_if_due(self) -> bool:
+        """Live: run the batch adjustment the updates deferred, if due; whether it ran."""
+        t0 = time.perf_counter()
+        try:
+            culled = self.engine.adjust_if_due() if self.engine is not None else None
+        except Exception as err:  # noqa: BLE001 (a worker's exception would vanish)
+            self.get_logger().error(f'batch adjustment failed: {err!r}')
+            return False
+        if culled is not None:
+            self.batch_ms.append(1e3 * (time.perf_counter() - t0))
+        return culled is not None
 
     def _bridge(self, stamp_ns: int, step: keyframes.TrackedStep | None
                 ) -> keyframes.TrackedStep | None:
@@ -243,7 +266,7 @@ class SfmNode(Node):
         t0 = time.perf_counter()  # waiting for the prefetched features counts
         self._last = self.engine.add_keyframe(
             stamp_ns, image, sfm_outputs.vertices_from_rows(rows), step,
-            features.result() if features is not None else None)
+            features.result() if features is not None else None, defer_batch=self.live)
         self.features_prefetched += features is not None
         sfm_outputs.compact(self.engine)  # finished segments to arrays: memory of long scans
         self._times_ms.append(1e3 * (time.perf_counter() - t0))
@@ -298,6 +321,7 @@ class SfmNode(Node):
             out['update_ms'] = [round(t, 1) for t in self._times_ms]
             if self.live:
                 out['timeline_ns'] = list(self.timeline_ns)
+                out['batch_ms'] = [round(t, 1) for t in self.batch_ms]
         if self.engine is not None:
             seg = sfm_outputs.best_segment(self.engine)
             m = seg.map

@@ -4,7 +4,7 @@ import sys
 import threading
 
 from absscale_ros import conversions
-from absscale_ros.core import sfm
+from absscale_ros.core import sfm, sfm_outputs
 from absscale_ros.nodes.sfm import SfmNode
 import numpy as np
 from rclpy.executors import SingleThreadedExecutor
@@ -24,10 +24,10 @@ def test_a_live_sfm_behind_takes_the_newest_keyframe_and_chains_the_skipped_step
     release, steps = threading.Event(), {}
     add_keyframe = sfm.IncrementalSfm.add_keyframe
 
-    def slow_add(engine, stamp_ns, image, vertices=None, step=None, features=None):
+    def slow_add(engine, stamp_ns, image, vertices=None, step=None, features=None, **kw):
         release.wait(timeout=30.0)
         steps[stamp_ns] = step
-        return add_keyframe(engine, stamp_ns, image, vertices, step, features)
+        return add_keyframe(engine, stamp_ns, image, vertices, step, features, **kw)
 
     monkeypatch.setattr(sfm.IncrementalSfm, 'add_keyframe', slow_add)
     node = SfmNode(context=context, parameter_overrides=[Parameter('qos', value='sensor_data')])
@@ -64,3 +64,42 @@ def test_a_live_sfm_behind_takes_the_newest_keyframe_and_chains_the_skipped_step
     assert r['keyframes_in'] == 2 and r['keyframes_skipped'] == 4
     values = conversions.diagnostic_values(probe.diags[-1].status[0])
     assert values['keyframes_skipped'] == '4'  # the user sees it
+
+
+def test_a_live_sfm_adjusts_after_publishing_and_keeps_the_offline_map(context) -> None:
+    """Keyframes one at a time, each once the last is done: none skipped, and the batch
+    adjustment a due update left for later gives the map the core gives offline (there the
+    batch is inside the update)."""
+    seq = sfm_scenes.make_sequence('indoor_paper', 1, count=6)
+    stamps = [(k + 1) * 100_000_000 for k in range(len(seq.images_bgr))]
+    node = SfmNode(context=context, parameter_overrides=[
+        Parameter('qos', value='sensor_data'), Parameter('graph.batch_every', value=3)])
+    probe = Probe(context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    executor.add_node(probe)
+    rng = np.random.default_rng(5)
+    try:
+        assert spin_until(executor, lambda: probe.kf.get_subscription_count() > 0)
+        for k, image in enumerate(seq.images_bgr):
+            probe.send(seq.camera, stamps[k], image, _rows(sfm_scenes.detections(seq, k, rng)[0]),
+                       _tracked(seq, k, stamps))
+            # Idle again (a due batch adjustment included) before the next keyframe comes.
+            assert spin_until(executor, lambda: len(probe.got[OUTPUTS[1]]) == k + 1
+                              and not node._updating, timeout_s=30.0)
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+    assert node.keyframes_skipped == 0 and len(node.batch_ms) >= 1
+    cfg = sfm.SfmConfig()
+    cfg = sfm.replace(cfg, graph_cfg=sfm.replace(cfg.graph_cfg, batch_every=3))
+    engine = sfm.IncrementalSfm(seq.camera, cfg, np.random.default_rng(0))
+    rng = np.random.default_rng(5)
+    for k, image in enumerate(seq.images_bgr):
+        engine.add_keyframe(stamps[k], image, sfm_outputs.vertices_from_rows(
+            _rows(sfm_scenes.detections(seq, k, rng)[0])), _tracked(seq, k, stamps))
+    # The node's map after its last deferred adjustment (its last path went out before it).
+    ids, T = engine.current.map.poses()
+    node_ids, node_T = node.engine.current.map.poses()
+    assert len(ids) == len(node_ids) == 6
+    assert np.allclose(node_T[:, :3, 3], T[:, :3, 3], atol=1e-5)
