@@ -133,7 +133,8 @@ class IncrementalSfm:
     def add_keyframe(self, stamp_ns: int, image_bgr: npt.NDArray[np.uint8],
                      vertices: vm.Vertices | None = None,
                      step: keyframes.TrackedStep | None = None,
-                     features: feat.Features | None = None) -> UpdateResult:
+                     features: feat.Features | None = None,
+                     defer_batch: bool = False) -> UpdateResult:
         """
         Process one keyframe; see ``UpdateResult``.
 
@@ -142,6 +143,8 @@ class IncrementalSfm:
         :param step: its motion from the previous keyframe as the keyframe selector tracked it
             (None: unknown); a pose that disagrees with it is refused.
         :param features: ``detect(image_bgr)`` if already computed (None: detected here).
+        :param defer_batch: leave a due batch adjustment to ``adjust_if_due`` (live: run once
+            this keyframe is published and no newer one waits; it costs seconds).
         """
         if step is not None:
             self._steps[stamp_ns] = step
@@ -160,11 +163,20 @@ class IncrementalSfm:
             status, msg = self._try_initialise(seg, kf)
         else:
             status, msg = self._register(seg, kf)
-        if status in ('registered', 'relocalised') and seg.graph.batch_due(len(seg.map.keyframes)):
+        if status in ('registered', 'relocalised') and not defer_batch and \
+                seg.graph.batch_due(len(seg.map.keyframes)):
             culled = seg.graph.batch(seg.map, self._progress)
             msg += f'; batch adjustment culled {culled} landmarks'
         self._forget_descriptors()
         return self._result(status, msg)
+
+    def adjust_if_due(self) -> int | None:
+        """The batch adjustment ``defer_batch`` left out, if the current segment is due one:
+        the landmarks it culled (None: not due)."""
+        seg = self.current
+        if not seg.initialised or not seg.graph.batch_due(len(seg.map.keyframes)):
+            return None
+        return seg.graph.batch(seg.map, self._progress)
 
     def _forget_descriptors(self) -> None:
         """
