@@ -181,8 +181,11 @@ def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
             monitor.watch(topic, msgtype, recorded=False, best_effort=options.live)
         # Offline, one thread: GTSAM holds the GIL, so threads would not overlap the stages
         # and rclpy's multi-threaded executor costs ~40 % more CPU (measured on the sample bag).
-        # A step window > 1 overlaps the stages across processes (--processes).
-        executor = MultiThreadedExecutor(num_threads=3, context=context) if options.live \
+        # A step window > 1 overlaps the stages across processes (--processes). Live with
+        # --processes the runner holds only the replay and the monitor: one thread too (three
+        # cost the runner 51 s of CPU over the 60 s bag, more than any node).
+        executor = MultiThreadedExecutor(num_threads=3, context=context) \
+            if options.live and not options.processes \
             else common.single_threaded_executor(context)
         for node in [*nodes.values(), monitor, replay]:
             executor.add_node(node)
