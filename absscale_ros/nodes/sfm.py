@@ -77,6 +77,9 @@ class SfmNode(Node):
         self.features_prefetched = 0  # keyframes whose features came from the worker
         # Live: the keyframe waiting for the update worker, and the skipped ones' steps.
         self._lock = threading.Lock()
+        # Live: held while the worker changes the map, so a report from another thread (the
+        # node's end) reads it whole; re-entrant, as an update's diagnostics report too.
+        self._engine_lock = threading.RLock()
         self._waiting: tuple[Image, PointCloud2, TransformStamped | None] | None = None
         self._updating = False
         self._updater = ThreadPoolExecutor(1, 'sfm_update') if self.live else None
@@ -211,7 +214,8 @@ class SfmNode(Node):
             stamp_ns = conversions.stamp_to_ns(item[0].header.stamp)
             started = time.monotonic_ns()
             try:
-                self._process(*item)
+                with self._engine_lock:
+                    self._process(*item)
                 with self._lock:
                     arrived = self._arrived_ns.pop(stamp_ns, started)
                     for old in [s for s in self._arrived_ns if s < stamp_ns]:
@@ -224,7 +228,8 @@ class SfmNode(Node):
         """Live: run the batch adjustment the updates deferred, if due; whether it ran."""
         t0 = time.perf_counter()
         try:
-            culled = self.engine.adjust_if_due() if self.engine is not None else None
+            with self._engine_lock:
+                culled = self.engine.adjust_if_due() if self.engine is not None else None
         except Exception as err:  # noqa: BLE001 (a worker's exception would vanish)
             self.get_logger().error(f'batch adjustment failed: {err!r}')
             return False
@@ -309,6 +314,10 @@ class SfmNode(Node):
         :param full_rms: RMS over the whole published segment (else over its newest three
             keyframes: cheap enough for every keyframe).
         """
+        with self._engine_lock:
+            return self._report(full_rms)
+
+    def _report(self, full_rms: bool) -> dict[str, Any]:
         times = np.array(self._times_ms or [np.nan])
         out: dict[str, Any] = {'keyframes_in': len(self._times_ms), 'keyframes_registered': 0,
                                'keyframes_skipped': self.keyframes_skipped,
