@@ -70,9 +70,12 @@ def mute_sandwiched(faces: list['Face'], labels: npt.NDArray[np.int64]) -> list[
 
 
 def _posing(face: 'Face') -> bool:
-    """Return True for a face that fixes a pose: whole, and seen at most 70 deg off-axis."""
+    """
+    Return True for a face that fixes a pose: whole (not a strip, not cut by the image
+    border), and seen at most 70 deg off-axis.
+    """
     sides = np.hypot(*(face.corners_px - face.corners_px[[1, 2, 3, 0]]).T)
-    return not face.thin and sides.min() >= MIN_POSING_ASPECT * sides.max()
+    return not face.thin and face.cut < 0 and sides.min() >= MIN_POSING_ASPECT * sides.max()
 
 
 def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks: list[Array],
@@ -81,12 +84,15 @@ def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks:
     """
     Assemble vertices (least-squares points of meeting edges), ids and edges of a cube.
 
-    A thin face adds its colour to the two corners it shares, not its far corners. Vertices
+    A thin face adds its colour to the two corners it shares, not its far corners; a face
+    the image border cuts adds its two corners off the border only. Vertices
     that no cube pose explains (``cube_geometry``) and corners where the image border cuts a
     face are left out, and faces left with none of their corners; None when no vertex where
     two colours meet is left.
     """
-    measured = [(0, 3) if f.thin else range(4) for f in faces]
+    # (nor the two corners where the image border cuts a face: the border's, not the cube's)
+    measured = [(0, 3) if f.thin else [c for c in range(4) if f.cut < 0 or
+                                       (c - f.cut) % 4 > 1] for f in faces]
     keys = sorted({int(lab[c]) for lab, cs in zip(labels, measured) for c in cs})
     index = {k: i for i, k in enumerate(keys)}
     meeting: list[list[Array]] = [[] for _ in keys]
@@ -102,10 +108,19 @@ def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks:
                 edges.add((min(v, w), max(v, w)))
     vertices = np.array([lines.nearest_point(np.array(ls)) for ls in meeting])
     posing = [_posing(f) for f in faces]
+    # A face the image border cuts poses the cube completed from its seen whole side and the
+    # two sides leaving it (with known intrinsics only).
+    completed = {f: cube_geometry.complete_cut(face.corners_px, face.lines, face.cut, Ks[0])
+                 for f, face in enumerate(faces)
+                 if face.cut >= 0 and not face.runs_on and len(Ks) == 1}
+    completed = {f: c for f, c in completed.items()
+                 if c is not None and _posing(dataclasses.replace(faces[f], corners_px=c, cut=-1))}
+    posing = [p or f in completed for f, p in enumerate(posing)]
     keep, proj = cube_geometry.explained(vertices, list(np.flatnonzero(posing)),
                                          [f.corners_px for f in faces],
                                          [f.thin for f in faces],
-                                         [f.runs_on for f in faces], Ks, shape_tol_frac)
+                                         [f.runs_on for f in faces], Ks, shape_tol_frac,
+                                         completed)
     h, w = shape[:2]
     keep &= (vertices >= BORDER_PX).all(axis=1) & (vertices[:, 0] <= w - 1 - BORDER_PX) & (
         vertices[:, 1] <= h - 1 - BORDER_PX)

@@ -90,7 +90,8 @@ def agrees(shown: list[npt.NDArray[np.float32]], found: npt.NDArray[np.float32])
 
 
 def explained(vertices_px: Array, posing: list[int], polygons: list[Array], thin: list[bool],
-              mute: list[bool], Ks: list[Array], tol_frac: float
+              mute: list[bool], Ks: list[Array], tol_frac: float,
+              pose_corners: dict[int, Array] | None = None
               ) -> tuple[npt.NDArray[np.bool_], Posed | None]:
     """
     Return (V,) True for vertices that every believed single-face cube pose explains, with
@@ -107,23 +108,26 @@ def explained(vertices_px: Array, posing: list[int], polygons: list[Array], thin
         colour runs on past its side).
     :param tol_frac: largest distance of a vertex from its projected cube vertex, as a
         fraction of the longest side of the face that gave the pose.
+    :param pose_corners: posing faces whose pose comes from other corners than their
+        outline (a face cut by the image border, completed: ``complete_cut``), with one K.
     :returns: all False and None when no pose is believed.
     """
     best: tuple[npt.NDArray[np.bool_], Posed | None] = (np.zeros(len(vertices_px), bool), None)
     for K in Ks:
-        keep, proj = _explained(vertices_px, posing, polygons, thin, mute, K, tol_frac)
+        keep, proj = _explained(vertices_px, posing, polygons, thin, mute, K, tol_frac,
+                                pose_corners or {})
         if keep.sum() > best[0].sum():
             best = keep, proj
     return best
 
 
 def _explained(vertices_px: Array, posing: list[int], polygons: list[Array], thin: list[bool],
-               mute: list[bool], K: Array, tol_frac: float
+               mute: list[bool], K: Array, tol_frac: float, pose_corners: dict[int, Array]
                ) -> tuple[npt.NDArray[np.bool_], Posed | None]:
     keep, best, best_n = None, None, -1  # type: ignore[var-annotated]
     hulls = [cv2.convexHull(p.astype(np.float32)) for p in polygons]
     for f in posing:
-        corners = polygons[f]
+        corners = pose_corners.get(f, polygons[f])
         side = float(np.hypot(*(corners - corners[[1, 2, 3, 0]]).T).max())
         tol = max(3.0, tol_frac * side)
         for proj in cube_projections(corners, K):
@@ -139,6 +143,32 @@ def _explained(vertices_px: Array, posing: list[int], polygons: list[Array], thi
             if ok.sum() > best_n:
                 best, best_n = (proj, tol), int(ok.sum())
     return (np.zeros(len(vertices_px), dtype=bool) if keep is None else keep), best
+
+
+def complete_cut(corners_px: Array, side_lines: Array, cut: int, K: Array) -> Array | None:
+    """
+    Return the (4, 2) corners of a square face the image border cuts along side ``cut``
+    (its corners ``cut`` and ``cut + 1`` lie on the border), from what is seen: the whole
+    side between its other two corners A, B and the directions of the two sides leaving
+    them (parallel in 3D: their vanishing point gives their direction, the side A B's plane
+    through the camera the one perpendicular to it; ``sheet_stub.far_corners``). Each far
+    corner is the one on the seen part's side of its corner; None when either is missing.
+    """
+    from absscale_ros.core import sheet_stub  # (the same construction: a stub sheet's side)
+    a, b = (cut + 2) % 4, (cut + 3) % 4
+    out = corners_px.copy()
+    for near, other, l_near, l_other, far in ((a, b, side_lines[(cut + 1) % 4],
+                                               side_lines[b], (cut + 1) % 4),
+                                              (b, a, side_lines[b], side_lines[(cut + 1) % 4],
+                                               cut)):
+        towards = corners_px[far] - corners_px[near]
+        ends = [p for p in sheet_stub.far_corners(corners_px[near], corners_px[other], l_near,
+                                                  l_other, K, 1.0)
+                if (p - corners_px[near]) @ towards > 0.0]
+        if not ends:
+            return None
+        out[far] = ends[0]
+    return out
 
 
 def strip_far_corners(proj: Array, strip: Array, tol: float, slack: float) -> Array | None:

@@ -8,7 +8,9 @@ Hough vote at 2 degree resolution over the face outline (a 3 px wide rho strip t
 slight curvature of lens distortion) and refined to sub-pixel on the full-resolution colour
 mask. Corners of different faces that meet are merged into one cube vertex: the point nearest
 (least squares) to all the edges meeting there, as the paper does when three edges do not
-meet exactly. Faces sharing an edge form one cube.
+meet exactly. Faces sharing an edge form one cube. A face the image border cuts along one side
+keeps its other sides and the corners between them; sharp, it also poses the cube, completed
+from its whole side (``cube_geometry.complete_cut``).
 """
 from dataclasses import dataclass
 
@@ -24,6 +26,8 @@ Array = npt.NDArray[np.float64]
 # opposite sides in a band wider than BLUR_FREE_BAND_PX.
 BLUR_MIN_RAMP_FRAC = 0.25
 BLUR_FREE_BAND_PX = 12.0
+BORDER_PX = 2.0  # a rough face corner this close to the image border lies on it
+CUT_MAX_RAMP_PX = 3.0  # a sharp side ramps over 1-2 px (25-75 %): sharper poses a cut face
 
 
 @dataclass(frozen=True)
@@ -110,7 +114,9 @@ class Face:
     A detected face: colour, (4, 2) corners px, (4, 3) side lines, side supports; ``thin``
     for a strip seen edge-on (``cube_strips``: only its corners 0 and 3 are measured), and
     ``runs_on`` for a strip that is no evidence for a cube pose (its colour goes on past its
-    side, it tapers to nothing, or it lies between two faces in the blur retry).
+    side, it tapers to nothing, or it lies between two faces in the blur retry); ``cut``: the
+    side along the image border of a face the border cuts (``_border_side``: that side's line
+    is the border's, its two corners are no cube vertices), -1 for none.
     """
 
     colour: str
@@ -119,6 +125,7 @@ class Face:
     supports: Array
     thin: bool = False
     runs_on: bool = False
+    cut: int = -1
 
 
 def colour_mask(hsv: npt.NDArray[np.uint8], hue_deg: tuple[float, float], cfg: CubeConfig
@@ -227,16 +234,23 @@ def _refine_faces(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array
                                                     blur_band_px)
         if not rough:
             return []
-        refined, supports, steps, _, _ = sides.refine(image_bgr, side_lines, ends, (4.0, 2.5),
-                                                      n, colours=colours, blurred=True)
+        refined, supports, steps, inside, outside = sides.refine(
+            image_bgr, side_lines, ends, (4.0, 2.5), n, colours=colours, blurred=True)
     else:
-        refined, supports, steps, _, _ = sides.refine(image_bgr, side_lines, ends,
-                                                      (6.0, 4.0, 2.5), n)
+        refined, supports, steps, inside, outside = sides.refine(image_bgr, side_lines, ends,
+                                                                 (6.0, 4.0, 2.5), n)
     faces = []
-    for f, (colour, hough, _) in enumerate(rough):
-        ls, sup = refined[4 * f:4 * f + 4], supports[4 * f:4 * f + 4]
-        if steps[4 * f:4 * f + 4].min() < cfg.min_step or sup.min() < cfg.min_support:
+    h, w = image_bgr.shape[:2]
+    for f, (colour, hough, quad) in enumerate(rough):
+        ls, sup = refined[4 * f:4 * f + 4].copy(), supports[4 * f:4 * f + 4].copy()
+        real = np.ones(4, bool)
+        cut = None if blur_band_px > 0.0 else _border_side(quad, w, h)
+        if cut is not None:  # no colour step to find there: the border's own line
+            ls[cut[0]], real[cut[0]] = cut[1], False
+        if steps[4 * f:4 * f + 4][real].min() < cfg.min_step or \
+                sup[real].min() < cfg.min_support:
             continue
+        sup[~real] = sup[real].min()
         corners = lines.quad_corners(list(ls))
         hough_corners = lines.quad_corners(list(hough))
         if corners is None or hough_corners is None:
@@ -247,8 +261,29 @@ def _refine_faces(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array
         side_px = np.hypot(*(hough_corners - np.roll(hough_corners, -1, 0)).T).max()
         if np.abs(corners - hough_corners).max() > max(4.0, 0.25 * side_px):
             continue  # the refinement ran off to another edge
-        faces.append(Face(colour, corners, ls.copy(), sup.copy()))
+        # A cut face poses the cube from an extrapolation: only on sharp sides (a motion
+        # streak across them shifts its seen corners by pixels); smeared, it is mute.
+        smeared = cut is not None and sides.ramp_widths(
+            image_bgr, ls[real], np.stack([corners, np.roll(corners, -1, axis=0)], 1)[real],
+            6.0, inside[4 * f:4 * f + 4][real], outside[4 * f:4 * f + 4][real]).max() \
+            > CUT_MAX_RAMP_PX
+        faces.append(Face(colour, corners, ls, sup, runs_on=bool(smeared),
+                          cut=-1 if cut is None else cut[0]))
     return faces
+
+
+def _border_side(quad: Array, w: int, h: int) -> tuple[int, Array] | None:
+    """
+    Return (side index, line of the image edge, normal out) when exactly one side of a rough
+    face quad (full px) runs along the image border (both ends within ``BORDER_PX``), else
+    None: a face the border cuts still shows its other sides and the corners between them.
+    """
+    near = [(quad[:, 0] <= BORDER_PX, np.array([-1.0, 0.0, -0.5])),
+            (quad[:, 0] >= w - 1 - BORDER_PX, np.array([1.0, 0.0, 0.5 - w])),
+            (quad[:, 1] <= BORDER_PX, np.array([0.0, -1.0, -0.5])),
+            (quad[:, 1] >= h - 1 - BORDER_PX, np.array([0.0, 1.0, 0.5 - h]))]
+    found = [(i, line) for at, line in near for i in range(4) if at[i] and at[(i + 1) % 4]]
+    return found[0] if len(found) == 1 else None
 
 
 def _smeared(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array, Array]],

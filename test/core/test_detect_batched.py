@@ -82,7 +82,6 @@ def test_auto_mode_shares_the_half_size_image_without_changing_detections():
         np.testing.assert_array_equal(shared.vertices_px, own.vertices_px)
 
 
-
 SIM_FRAMES = Path(__file__).parents[1] / 'data' / 'sim_frames'
 
 
