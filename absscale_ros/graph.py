@@ -27,7 +27,6 @@ from absscale_ros.nodes.bag_replay import BagReplayNode
 from absscale_ros.nodes.graph_monitor import GraphMonitorNode
 import numpy as np
 import rclpy
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
@@ -67,8 +66,8 @@ class RunOptions:
     """
     How to run the graph over a bag.
 
-    :param live: replay at bag rate into sensor-data QoS with a multi-threaded executor, so
-        nodes that fall behind drop frames instead of queueing them (a camera's view).
+    :param live: replay at bag rate into sensor-data QoS; nodes that fall behind drop frames
+        (and the sfm keyframes) instead of queueing them (a camera's view).
     """
 
     mode: str = 'step'
@@ -179,14 +178,13 @@ def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
         replay = BagReplayNode(context=context, parameter_overrides=_overrides(replay_params))
         for topic, msgtype in replay.topic_types().items():
             monitor.watch(topic, msgtype, recorded=False, best_effort=options.live)
-        # Offline, one thread: GTSAM holds the GIL, so threads would not overlap the stages
-        # and rclpy's multi-threaded executor costs ~40 % more CPU (measured on the sample bag).
-        # A step window > 1 overlaps the stages across processes (--processes). Live with
-        # --processes the runner holds only the replay and the monitor: one thread too (three
-        # cost the runner 51 s of CPU over the 60 s bag, more than any node).
-        executor = MultiThreadedExecutor(num_threads=3, context=context) \
-            if options.live and not options.processes \
-            else common.single_threaded_executor(context)
+        # One thread: GTSAM holds the GIL, so threads would not overlap the stages and rclpy's
+        # multi-threaded executor costs ~40 % more CPU (measured on the sample bag). A step
+        # window > 1 overlaps the stages across processes (--processes). Live too: the live
+        # sfm adds keyframes on a thread of its own, and three executor threads had cost the
+        # 60 s bag 51 s of CPU in a --processes runner (replay and monitor alone; now 23 s)
+        # and, all nodes in one process, lost 28-48 % of the frames (now 6-11 %).
+        executor = common.single_threaded_executor(context)
         for node in [*nodes.values(), monitor, replay]:
             executor.add_node(node)
         memory: list[list[float]] = []
