@@ -36,7 +36,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 STAGES = {'features': 'feature_cfg', 'twoview': 'twoview_cfg', 'graph': 'graph_cfg',
           'vertices': 'vertex_cfg', 'local_map': 'local_cfg',
-          'cloud': 'cloud_cfg'}  # parameter prefix -> SfmConfig field
+          'cloud': 'cloud_cfg', 'refine': 'refine_cfg'}  # parameter prefix -> SfmConfig field
 
 
 class SfmNode(Node):
