@@ -35,6 +35,7 @@ class FusionConfig:
     voxel_m: float = 0.01  # voxel edge of the fused cloud, m
     consistency_rel: float = 0.005  # depths agreeing within this fraction are the same surface
     min_consistent: int = 1  # other keyframes' depth maps that must agree
+    sweep_consistent: int = 1  # ... with a point only the plane sweep found (noisier)
     neighbours: int = 3  # keyframes on each side a depth pixel is checked against
     max_new_maps: int = 2  # stereo pairs computed per update at most (the rest wait)
     both_sides: bool = True  # a partner on each side of a keyframe (two depth maps), else one
@@ -318,7 +319,8 @@ class DenseFusion:
                     idx = short[_agreeing_index(world[short], pose, m,
                                                 self.cfg.consistency_rel)[0]]
                 votes[idx] += 1
-            keep = votes >= self.cfg.min_consistent
+            needed = self.cfg.sweep_consistent if side == SWEEP else self.cfg.min_consistent
+            keep = votes >= needed
             if self.cfg.average:
                 world = total / weight[:, None]
                 pts = dense_stereo.transform(world - kf.pose[:3, 3], kf.pose[:3, :3].T)

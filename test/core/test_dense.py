@@ -125,6 +125,17 @@ def test_plane_sweep_gives_depth_where_the_camera_walks_forward() -> None:
     assert len(xyz) > 1500  # none without the sweep
     dist = mesh.distance(xyz)
     assert np.median(dist) < 0.005 * np.median(z) and np.percentile(dist, 90) < 0.02 * np.median(z)
+    # Asking two other depth maps to agree with a swept point: fewer points, none worse.
+    strict = dense_fusion.DenseFusion(STEREO, dense_fusion.FusionConfig(sweep_consistent=2),
+                                      dense_sweep.SweepConfig(scale=0.5))
+    for k, image in enumerate(images):
+        strict.add_keyframe(k, image, cam)
+    strict.update(dict(enumerate(poses)))
+    while strict.backlog:
+        strict.catch_up()
+    fewer = mesh.distance(strict.cloud()[0])
+    assert 0 < len(fewer) < 0.9 * len(xyz)
+    assert np.percentile(fewer, 90) <= np.percentile(dist, 90) * 1.05
 
 
 def test_slanted_sweep_follows_a_surface_seen_at_a_grazing_angle() -> None:
