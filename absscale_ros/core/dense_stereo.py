@@ -40,6 +40,7 @@ class StereoConfig:
     max_step_m: float = 0.0  # depth change per pixel of disparity larger than this: dropped
     max_canvas_grow: float = 1.5  # rectified image at most this much larger than the keyframe
     widen_left: bool = True  # widen the canvas by SGBM's blind left margin (disparity range)
+    min_texture: float = 0.0  # grey-level deviation in a block below this: no depth (0: keep)
 
 
 @dataclass
@@ -198,6 +199,8 @@ def compute_depth(ref_bgr: np.ndarray, other_bgr: np.ndarray, camera: CameraMode
         rect, inside = _rectify(ref_bgr, other_bgr, cam, dist, (R_ref, R_other), K_rect, canvas)
         grey = [cv2.cvtColor(r, cv2.COLOR_BGR2GRAY) for r in rect]
     disp = _sgbm(grey[0], grey[1], lo, num, cfg)
+    if cfg.min_texture > 0.0:  # a plain face: SGM's smoothness, not a match, sets its depth
+        disp[_deviation(grey[0], cfg.block_size) < cfg.min_texture] = 0.0
     # A matching window that overlaps an image's black margin is biased: keep a block away.
     rim = np.ones((cfg.block_size, cfg.block_size), np.uint8)
     inside = [cv2.erode(m.astype(np.uint8), rim).astype(bool) for m in inside]
@@ -213,6 +216,13 @@ def compute_depth(ref_bgr: np.ndarray, other_bgr: np.ndarray, camera: CameraMode
     if cfg.max_step_m > 0.0:  # far points, however good relative to their depth (z^2 / f B)
         depth[depth * depth > cfg.max_step_m * f * baseline] = 0.0
     return DepthMap(depth.astype(np.float32), rect[0], K_rect, R_ref, pair_stamp, T)
+
+
+def _deviation(grey: np.ndarray, size: int) -> np.ndarray:
+    """Standard deviation of the grey levels in a ``size`` x ``size`` window round each pixel."""
+    g = grey.astype(np.float32)
+    mean = cv2.boxFilter(g, -1, (size, size))
+    return np.sqrt(np.maximum(cv2.boxFilter(g * g, -1, (size, size)) - mean * mean, 0.0))
 
 
 def _precise(depth: np.ndarray, K_rect: FloatArray, baseline: float,
