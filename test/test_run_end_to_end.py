@@ -119,6 +119,7 @@ def test_live_run_reports_what_each_node_handled(tmp_path: Path) -> None:
                            '--config', 'indoor_paper', '--out', str(out), '--live'],
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 1, done.stderr[-3000:]  # no target in random frames: no scale
+    assert 'add --processes for real time' in done.stderr  # one process lags a live camera
     report = json.loads((out / 'report.json').read_text())
     assert report['replay']['live'] and report['replay']['mode'] == 'rate'
     skipped = report['frames_not_processed']
