@@ -10,7 +10,8 @@ landmarks are triangulated with the matched keyframes, and the segment's ``Segme
 (GTSAM) refines everything.
 """
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, is_dataclass, replace
+from typing import Any
 
 import cv2
 import numpy as np
@@ -78,6 +79,27 @@ class SfmConfig:
                     self.slow_step_share, self.plane_tol, self.plane_check_px) < 0.0 or \
                 self.min_off_plane < 1 or not 0.0 < self.max_tracked_angle_deg <= 180.0:
             raise ValueError(f'bad sfm config {self}')
+
+
+# ROS parameter prefix of each nested config of SfmConfig (``features.ratio`` is
+# feature_cfg.ratio): the sfm node declares them, `bench sfm --config` reads a file with them.
+PARAM_PREFIXES = {'features': 'feature_cfg', 'twoview': 'twoview_cfg', 'graph': 'graph_cfg',
+                  'vertices': 'vertex_cfg', 'local_map': 'local_cfg', 'cloud': 'cloud_cfg',
+                  'refine': 'refine_cfg'}
+
+
+def config_from_params(flat: dict[str, Any]) -> SfmConfig:
+    """SfmConfig from an sfm node's parameters (dotted names); others are ignored."""
+    cfg = SfmConfig()
+    values: dict[str, Any] = {f.name: flat[f.name] for f in fields(cfg)
+                              if not is_dataclass(getattr(cfg, f.name)) and f.name in flat}
+    for prefix, attr in PARAM_PREFIXES.items():
+        sub = getattr(cfg, attr)
+        found = {f.name: flat[f'{prefix}.{f.name}'] for f in fields(sub)
+                 if f'{prefix}.{f.name}' in flat}
+        values[attr] = replace(sub, **{
+            k: tuple(v) if isinstance(getattr(sub, k), tuple) else v for k, v in found.items()})
+    return replace(cfg, **values)
 
 
 @dataclass(frozen=True)

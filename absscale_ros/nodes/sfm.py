@@ -34,10 +34,6 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
-STAGES = {'features': 'feature_cfg', 'twoview': 'twoview_cfg', 'graph': 'graph_cfg',
-          'vertices': 'vertex_cfg', 'local_map': 'local_cfg',
-          'cloud': 'cloud_cfg', 'refine': 'refine_cfg'}  # parameter prefix -> SfmConfig field
-
 
 class SfmNode(Node):
 
@@ -48,7 +44,7 @@ class SfmNode(Node):
                 if not is_dataclass(getattr(cfg, f.name))}
         values = {k: self.declare_parameter(k, v).value for k, v in flat.items()}
         values.update({field: common.declare_config(self, getattr(cfg, field), prefix)
-                       for prefix, field in STAGES.items()})
+                       for prefix, field in sfm.PARAM_PREFIXES.items()})
         self._cfg = replace(cfg, **values)
         p = {x.name: x.value for x in self.declare_parameters('', [
             ('pair_depth', 10), ('seed', 0), ('frame_id', 'map'), ('use_tracked_steps', True),

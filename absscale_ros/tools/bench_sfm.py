@@ -47,6 +47,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--seed', type=int, default=0, help='seed of noise and RANSAC')
     parser.add_argument('--colmap', action='store_true', help='also run pycolmap on the keyframes')
     parser.add_argument('--json', action='store_true', help='print the figures as JSON')
+    parser.add_argument('--config', default=None,
+                        help="take the sfm settings from this config's sfm section (a name or a "
+                             'YAML path; default: the core defaults)')
 
 
 def _keyframe_indices(path: str, gt: dict[str, Any], args: argparse.Namespace) -> set[int]:
@@ -132,11 +135,20 @@ def _detected(image: np.ndarray, camera: CameraModel, gt: dict[str, Any]) -> vm.
     return sfm_outputs.vertices_from_rows(detect.vertices_array(result))
 
 
+def _config(args: argparse.Namespace) -> sfm.SfmConfig:
+    """The SfM settings a run with ``--config`` would use (the sfm node's section)."""
+    if getattr(args, 'config', None) is None:
+        return sfm.SfmConfig()
+    from absscale_ros import params
+    sections = params.load_yaml(params.find_config(args.config))
+    return sfm.config_from_params(params.node_params(sections, 'sfm'))
+
+
 def bench_one(camera: CameraModel, gt: dict[str, Any], frames: Iterator[Keyframe],
               args: argparse.Namespace) -> dict[str, Any]:
     """Run the incremental SfM over the keyframes and score it."""
     rng = np.random.default_rng(args.seed)
-    engine = sfm.IncrementalSfm(camera, sfm.SfmConfig(), np.random.default_rng(args.seed))
+    engine = sfm.IncrementalSfm(camera, _config(args), np.random.default_rng(args.seed))
     times_s, cpu_s, poses, truth, images, results = [], [], {}, {}, [], []
     for kf_id, (stamp, img, T, fr) in enumerate(frames):
         vertices, true_ids = (_detected(img, camera, gt), None) if args.detector else \
