@@ -1,6 +1,6 @@
 """
-Sub-pixel refinement of a landmark's observations by patch alignment at full resolution, and
-its multi-view triangulation with the poses held (for the Table 3 lengths of issue #7).
+Sub-pixel refinement of a landmark's observations by patch alignment at full resolution (for
+the Table 3 lengths of issue #7).
 
 SIFT runs on a 640 px copy; its observations of one landmark disagree by ~0.5-0.7 px (median,
 against the ground truth transferred between simulator keyframes). Here the patch around the
@@ -139,28 +139,3 @@ def align(ref: Grey, img: Grey, T_ref: FloatArray, T_img: FloatArray, K: FloatAr
         return ((1 - fx) * (1 - fy) * M[i, y0, x0] + fx * (1 - fy) * M[i, y0, x0 + 1] +
                 (1 - fx) * fy * M[i, y0 + 1, x0] + fx * fy * M[i, y0 + 1, x0 + 1])
     return np.stack([at(u_b), at(v_b)], axis=1), ok
-
-
-def triangulate(K: FloatArray, T_world_cams: FloatArray, uv: FloatArray, x0: FloatArray,
-                iterations: int = 10) -> FloatArray:
-    """
-    Multi-view point minimising the reprojection error with the poses held (Gauss-Newton).
-
-    :param T_world_cams: (V, 4, 4) poses of the views; ``uv``: (V, 2) undistorted px.
-    :param x0: (3,) starting point, world frame.
-    """
-    x = np.array(x0, np.float64)
-    R, t = T_world_cams[:, :3, :3], T_world_cams[:, :3, 3]
-    Rt = np.transpose(R, (0, 2, 1))  # d p_cam / d x
-    for _ in range(iterations):
-        p = np.einsum('nji,nj->ni', R, x - t)
-        z = p[:, 2:3]
-        res = np.concatenate([K[0, 0] * p[:, 0] / z[:, 0] + K[0, 2] - uv[:, 0],
-                              K[1, 1] * p[:, 1] / z[:, 0] + K[1, 2] - uv[:, 1]])
-        J = np.vstack([K[0, 0] * (Rt[:, 0] / z - p[:, 0:1] * Rt[:, 2] / z**2),
-                       K[1, 1] * (Rt[:, 1] / z - p[:, 1:2] * Rt[:, 2] / z**2)])
-        step = np.linalg.lstsq(J, -res, rcond=None)[0]
-        x += step
-        if np.linalg.norm(step) < 1e-12 * max(1.0, np.linalg.norm(x)):
-            break
-    return x

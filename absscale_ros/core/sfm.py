@@ -269,12 +269,16 @@ class IncrementalSfm:
         groups: dict[tuple[int, int], list[int]] = {}
         for _, lm_id, a, k in todo:
             groups.setdefault((a, k), []).append(lm_id)
+        # One normal per landmark, though it is aligned into several keyframes (one KD-tree).
+        ids = sorted({lm_id for _, lm_id, _, _ in todo})
+        normal_of = dict(zip(ids, landmark_refine.plane_normals(
+            np.array([lms[i].point_world for i in ids]), cloud, cfg.neighbours)))
         moved = 0
         for (a, k), group in sorted(groups.items()):
-            pts = np.array([lms[i].point_world for i in group])
             uv, ok = landmark_refine.align(
                 grey[a], grey[k], m.keyframes[a].T_world_cam, m.keyframes[k].T_world_cam, self.K,
-                pts, landmark_refine.plane_normals(pts, cloud, cfg.neighbours),
+                np.array([lms[i].point_world for i in group]),
+                np.array([normal_of[i] for i in group]),
                 np.array([lms[i].obs_px[a] for i in group]), cfg)
             for lm_id, uv_k, good in zip(group, uv, ok.tolist()):
                 self._refined.add((lm_id, k))

@@ -63,16 +63,6 @@ def test_alignment_of_a_view_with_itself_is_exact(pair):
     np.testing.assert_allclose(found[ok], uv0[:50][ok], atol=1e-3)
 
 
-def test_triangulate_recovers_the_point_with_poses_held():
-    K = np.array([[800.0, 0.0, 640.0], [0.0, 800.0, 360.0], [0.0, 0.0, 1.0]])
-    T = np.array([sfm_scenes.look_at(np.array([x, -3.0, 1.0]), np.zeros(3))
-                  for x in (-0.5, 0.0, 0.7)])
-    X = np.array([0.2, 0.1, 0.3])
-    p = np.einsum('nji,nj->ni', T[:, :3, :3], X - T[:, :3, 3])
-    uv = p[:, :2] / p[:, 2:] @ K[:2, :2].T + K[:2, 2]
-    np.testing.assert_allclose(lr.triangulate(K, T, uv, X + [0.05, -0.03, 0.04]), X, atol=1e-9)
-
-
 def _landmark_errors(engine, seq, renderer) -> np.ndarray:
     """Distance (m) of each landmark seen by >= 3 keyframes, after a Sim(3) of the keyframe
     centres onto the truth, from the true surface point behind its first observation."""
