@@ -32,11 +32,16 @@ def velocity_change(centres: FloatArray, stamps_ns: npt.NDArray[np.int64]) -> fl
 
 
 def velocity_reason(centres: FloatArray, stamps_ns: npt.NDArray[np.int64], max_change: float,
-                    max_span_s: float) -> str | None:
+                    max_span_s: float, min_step: float = 0.0) -> str | None:
     """
     Why the newest of three camera centres is implausible (None: it is not, or the three span
-    more than ``max_span_s``, over which a camera may well turn back).
+    more than ``max_span_s``, over which a camera may well turn back, or both steps are shorter
+    than ``min_step``: a camera nearly still moves by pose noise, which reverses its velocity at
+    random, while an aliased pose jumps a texture period).
     """
+    steps = np.linalg.norm(np.diff(np.asarray(centres, np.float64), axis=0), axis=1)
+    if float(steps.max()) < min_step:
+        return None
     span = np.diff(np.asarray(stamps_ns, np.int64))
     if np.any(span <= 0) or 1e-9 * float(span.sum()) > max_span_s:
         return None

@@ -361,10 +361,8 @@ def check_path(centres: FloatArray, stamps_ns: npt.NDArray[np.int64], cfg: Scale
     # noise alone reverses their velocity; an aliased link is a long step (a texture period).
     floor = SLOW_STEP_SHARE * float(np.median(steps))
     for k in range(len(centres) - 2):
-        if max(steps[k], steps[k + 1]) < floor:
-            continue
         why = aliasing.velocity_reason(centres[k:k + 3], stamps_ns[k:k + 3], cfg.max_path_jump,
-                                       cfg.path_jump_s)
+                                       cfg.path_jump_s, floor)
         if why is not None:
             raise NotObservableError(f'the keyframe path jumps at keyframe {k + 2}{why}: the map '
                                      f'is bent there, no single factor scales it')

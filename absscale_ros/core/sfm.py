@@ -402,14 +402,12 @@ class IncrementalSfm:
             return disowned
         path = np.array([m.keyframes[i].T_world_cam[:3, 3] for i in ids])
         steps = np.linalg.norm(np.diff(path, axis=0), axis=1)
-        centres = np.vstack([path[-2:], kf.T_world_cam[:3, 3]])
-        newest = float(np.linalg.norm(centres[2] - centres[1]))
-        if max(newest, steps[-1]) < self.cfg.slow_step_share * float(np.median(steps)):
-            return disowned  # two short steps: pose noise, not a jump
         return aliasing.velocity_reason(
-            centres, np.array([m.keyframes[ids[-2]].stamp_ns, m.keyframes[ids[-1]].stamp_ns,
-                               kf.stamp_ns], np.int64), self.cfg.max_velocity_change,
-            self.cfg.motion_check_s) or disowned
+            np.vstack([path[-2:], kf.T_world_cam[:3, 3]]),
+            np.array([m.keyframes[ids[-2]].stamp_ns, m.keyframes[ids[-1]].stamp_ns,
+                      kf.stamp_ns], np.int64), self.cfg.max_velocity_change,
+            self.cfg.motion_check_s, self.cfg.slow_step_share * float(np.median(steps))) \
+            or disowned
 
     def _off_track(self, m: sfm_map.SfmMap, kf: sfm_map.MapKeyframe) -> str | None:
         """Why ``kf``'s new pose goes elsewhere than the selector tracked (None: it does not,
