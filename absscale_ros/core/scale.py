@@ -34,7 +34,8 @@ class ScaleConfig:
     outlier_sigma: float = 3.5  # reject a vertex whose pairs deviate by this many MADs
     # Vertices of one object closer than this share of its median vertex distance are one
     # corner reconstructed twice (seen again after the camera walked round it): the one seen
-    # under the widest angle stays.
+    # under the widest angle stays. While an object has more vertices than its target has
+    # corners, the closest two nearer than half its smallest corner distance are one too (0: off).
     duplicate_share: float = 0.05
     max_relative_sigma: float = 0.01  # claim a scale only when sigma / factor is below this
     confidence: float = 0.95  # of the reported interval
@@ -184,21 +185,46 @@ def usable(n_obs: npt.NDArray[np.int64], angles_deg: FloatArray,
         (np.asarray(angles_deg) >= cfg.min_angle_deg)
 
 
-def without_duplicates(points: FloatArray, angles_deg: FloatArray,
-                       share: float) -> npt.NDArray[np.int64]:
+def without_duplicates(points: FloatArray, angles_deg: FloatArray, share: float,
+                       corners: int = 0, apart: float = 0.0) -> npt.NDArray[np.int64]:
     """
     Indices of the vertices to keep: of those closer together than ``share`` of the median
-    distance between all of them, the one seen under the widest angle.
+    distance between all of them, the one seen under the widest angle. Then, while more remain
+    than the target's ``corners``, of the closest two, if closer than ``apart`` of that median,
+    the one seen under the wider angle (``share`` 0: nothing merged).
+
+    A corner first reconstructed from afar (the live 60 s bag: 12-16 m, narrow angles) can lie a
+    tenth of an edge from its second landmark, seen near, past ``share``; but a target cannot
+    have more corners than its model, and a point nearer one corner than half the model's
+    smallest corner distance is nearer it than any other.
     """
     if len(points) < 2 or share <= 0.0:
         return np.arange(len(points))
     dist = np.linalg.norm(points[:, None] - points[None, :], axis=2)
-    tol = share * float(np.median(dist[np.triu_indices(len(points), 1)]))
+    median = float(np.median(dist[np.triu_indices(len(points), 1)]))
+    angles = np.asarray(angles_deg)
     kept: list[int] = []
-    for i in np.argsort(-np.asarray(angles_deg), kind='stable'):
-        if all(dist[i, j] >= tol for j in kept):
+    for i in np.argsort(-angles, kind='stable'):
+        if all(dist[i, j] >= share * median for j in kept):
             kept.append(int(i))
+    while len(kept) > corners > 0:
+        sub = dist[np.ix_(kept, kept)] + np.diag(np.full(len(kept), np.inf))
+        a, b = np.unravel_index(int(np.argmin(sub)), sub.shape)
+        if sub[a, b] >= apart * median:
+            break
+        kept.remove(kept[a] if angles[kept[a]] < angles[kept[b]] else kept[b])
     return np.sort(np.array(kept, np.int64))
+
+
+def corner_gap(obj: 'ObjectVertices') -> float:
+    """Half the smallest corner distance of ``obj``'s models, as a share of their median."""
+    shares = []
+    for size in (obj.size_m, *obj.alternatives):
+        model = model_vertices_m(obj.kind, size)
+        i, j = _pair_index(len(model))
+        d = np.linalg.norm(model[i] - model[j], axis=1)
+        shares.append(0.5 * float(d.min() / np.median(d)))
+    return min(shares)
 
 
 def drop_outlier_vertex(points: FloatArray, model_m: FloatArray,
@@ -302,7 +328,9 @@ def estimate(objects: list[ObjectVertices], cfg: ScaleConfig,
     for obj in objects:
         keep = usable(obj.n_obs, obj.angles_deg, cfg)
         pts = np.asarray(obj.points, float)[keep]
-        single = without_duplicates(pts, np.asarray(obj.angles_deg)[keep], cfg.duplicate_share)
+        single = without_duplicates(pts, np.asarray(obj.angles_deg)[keep], cfg.duplicate_share,
+                                    len(model_vertices_m(obj.kind, obj.size_m)),
+                                    corner_gap(obj))
         if len(single) < len(pts):
             rejected.append(f'object {obj.object_id}: {len(pts) - len(single)} vertices '
                             'reconstructed twice, merged')
