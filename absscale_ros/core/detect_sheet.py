@@ -250,24 +250,8 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
                           dist)
     if not found and small:
         regions = [r for r in regions if not _whole_small(r[0], small, scale)]
-    if not found and cfg.min_seen < 1.0:
-        pents = [(p + 0.5) / scale - 0.5 for p in sheet_candidates.pentagons(regions)]
-        _accept_partial(image_bgr, [sheet_partial.hypotheses(p, cfg.min_seen) for p in pents],
-                        lambda hyp, out: sheet_partial.finish(hyp, out, band), band, cfg, K,
-                        found, dist=dist)
-    if not found and cfg.stub_px > 0.0:
-        K_ = K if K is not None else _guess_K(cfg.focal_frac, image_bgr.shape)
-        hyps = sheet_stub.first_hypotheses(regions, scale, K_, cfg.stub_px, STUB_MAX_HYPS)
-        groups = [hyps]  # one stub sheet at most: a fallback
-        aspect = tuple(m.aspect for m in cfg.models())
-        _accept_partial(image_bgr, groups,
-                        lambda hyp, out: sheet_stub.finish(hyp, out, band, K_, aspect,
-                                                           image_bgr=image_bgr), band,
-                        cfg, K, found, rough_aspect=False, checked=sheet_stub.CHECKED,
-                        dist=dist,
-                        fine_bands=sheet_stub.FINE_BANDS,
-                        screen=lambda hyp, out: sheet_stub.finish(
-                            hyp, out, band, K_, aspect, sheet_stub.SCREEN_SLACK) is not None)
+    if not found:
+        _accept_hidden(image_bgr, regions, scale, band, cfg, K, found, dist)
     if not found and cfg.blur_band_frac > 0.0:
         _accept_blurred(image_bgr, unfound, band, cfg, K, found, dist)
     found.sort(key=lambda f: -f[0])
@@ -419,57 +403,100 @@ def _blur_alike(ramps: Array) -> bool:
     return bool((gap <= np.maximum(2.0, 0.5 * pairs.max(axis=1))).all())
 
 
-def _accept_partial(image_bgr: npt.NDArray[np.uint8], groups: list[list[sheet_partial.Partial]],
-                    finish: Callable[[sheet_partial.Partial, sides.Refined], Refined6 | None],
-                    band: float, cfg: SheetConfig, K: Array | None, found: list[Found],
-                    rough_aspect: bool = True, checked: npt.NDArray[np.intp] | None = None,
+def _accept_hidden(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candidates.Region],
+                   scale: float, band: float, cfg: SheetConfig, K: Array | None,
+                   found: list[Found], dist: Array | None) -> None:
+    """
+    The hidden-corner paths: five-sided regions (``sheet_partial``, when ``cfg.min_seen`` < 1),
+    then, when they give no sheet, a stub (``sheet_stub``, ``cfg.stub_px`` > 0). Both sets of
+    hypotheses are refined in one ``_accept_partial`` call: a frame without a sheet tries both,
+    and one call per pass costs about a millisecond less than two.
+    """
+    paths: list[_Hidden] = []
+    if cfg.min_seen < 1.0:
+        pents = [(p + 0.5) / scale - 0.5 for p in sheet_candidates.pentagons(regions)]
+        paths.append(_Hidden([sheet_partial.hypotheses(p, cfg.min_seen) for p in pents],
+                             lambda hyp, out: sheet_partial.finish(hyp, out, band)))
+    if cfg.stub_px > 0.0:
+        K_ = K if K is not None else _guess_K(cfg.focal_frac, image_bgr.shape)
+        hyps = sheet_stub.first_hypotheses(regions, scale, K_, cfg.stub_px, STUB_MAX_HYPS)
+        aspect = tuple(m.aspect for m in cfg.models())
+        paths.append(_Hidden(
+            [hyps],  # one stub sheet at most: a fallback
+            lambda hyp, out: sheet_stub.finish(hyp, out, band, K_, aspect, image_bgr=image_bgr),
+            rough_aspect=False, checked=sheet_stub.CHECKED,
+            screen=lambda hyp, out: sheet_stub.finish(
+                hyp, out, band, K_, aspect, sheet_stub.SCREEN_SLACK) is not None))
+    _accept_partial(image_bgr, paths, band, cfg, K, found, dist=dist)
+
+
+@dataclass(frozen=True, eq=False)
+class _Hidden:
+    """
+    One hidden-corner path for ``_accept_partial``: hypotheses grouped by seen region,
+    ``finish`` turning refined sides into corners, whether the rough corners' aspect is
+    tested, the sides that must pass the first refinement pass (None: all) and a screen
+    after it (None: none).
+    """
+
+    groups: list[list[sheet_partial.Partial]]
+    finish: Callable[[sheet_partial.Partial, sides.Refined], Refined6 | None]
+    rough_aspect: bool = True
+    checked: npt.NDArray[np.intp] | None = None
+    screen: Callable[[sheet_partial.Partial, sides.Refined], bool] | None = None
+
+
+def _accept_partial(image_bgr: npt.NDArray[np.uint8], paths: list[_Hidden], band: float,
+                    cfg: SheetConfig, K: Array | None, found: list[Found],
                     fine_bands: tuple[float, ...] = sheet_partial.FINE_BANDS,
-                    screen: Callable[[sheet_partial.Partial, sides.Refined], bool] | None = None,
                     dist: Array | None = None) -> None:
     """
     Try every hidden-corner hypothesis of each group (one seen region); keep the best
-    supported per group. ``rough_aspect``: test the aspect of the rough corners (not for
-    stubs, whose rough hidden corner comes from short rough sides; ``_passes`` applies it and
-    the floor-tile rule to the refined corners anyway). The seen sides of all hypotheses
-    are refined together; ``checked`` are the sides that must pass the first refinement pass
-    (None: all), ``fine_bands`` the passes after it, ``finish`` turns the refined sides into
-    corners (``sheet_partial.finish``); ``screen`` drops hypotheses after the first pass.
+    supported per group. The paths are tried in order until one finds a sheet, but their
+    hypotheses are refined together, one ``sides.refine_many`` call (per pass) for all.
+    ``rough_aspect``: test the aspect of the rough corners (not for stubs, whose rough hidden
+    corner comes from short rough sides; ``_passes`` applies it and the floor-tile rule to the
+    refined corners anyway). ``checked`` are the sides that must pass the first refinement
+    pass (None: all), ``fine_bands`` the passes after it, ``finish`` turns the refined sides
+    into corners (``sheet_partial.finish``); ``screen`` drops hypotheses after the first pass.
 
     The extrapolated corner scores half the sheet's support times the smaller seen fraction of
     its two sides; the sheet's score is the mean over its corners.
     """
     # A corner beyond the border has no occluder to show for the cut (tiles).
-    groups = [[h for h in group
-               if not sheet_candidates.touches_border(h.corners, image_bgr.shape, band)
-               and (not rough_aspect or sheet_checks.aspect_ok(
-                   h.corners, image_bgr.shape, cfg, K, cfg.rough_aspect_tol, dist))]
-              for group in groups]
-    hyps = [h for g in groups for h in g]
-    rough = [sheet_partial.rough_sides(h) for h in hyps]
-    refined = iter(sides.refine_many(image_bgr, [r for r, _ in rough],
-                                     [h.seen_ends for h in hyps], (band,) + fine_bands,
-                                     [n for _, n in rough], FIRST_PASS_SUPPORT, checked,
-                                     None if screen is None else
-                                     lambda c, out: screen(hyps[c], out)))
-    for group in groups:
-        best: tuple[float, Found] | None = None
-        for hyp in group:
-            sides_out = next(refined)
-            out = None if sides_out is None else finish(hyp, sides_out)
-            if out is None or not sheet_checks.big_enough(out[5], image_bgr.shape, cfg) or \
-                    not sheet_checks.passes(image_bgr, out[:5], cfg, K, hyp.seen_ends,
-                                            dist=dist) or \
-                    not sheet_checks.covered(image_bgr, out[0][3], out[3], cfg):
-                continue
-            support = float(out[1].mean())
-            vs = np.array([support] * 3 + [0.5 * support * float(hyp.seen_frac.min())])
-            # A corner placed by the aspect: scored lower, and ranked after corners seen.
-            rank = support * float(out[6].min()) if len(out) > 6 else support
-            vs = vs * out[6] if len(out) > 6 else vs
-            if best is None or rank > best[0]:
-                best = (rank, (float(vs.mean()), out[0], out[5], vs))
-        if best is not None and all(np.abs(best[1][1] - f[1]).max() > 4.0 for f in found):
-            found.append(best[1])
+    groups = [[[h for h in group
+                if not sheet_candidates.touches_border(h.corners, image_bgr.shape, band)
+                and (not path.rough_aspect or sheet_checks.aspect_ok(
+                    h.corners, image_bgr.shape, cfg, K, cfg.rough_aspect_tol, dist))]
+               for group in path.groups] for path in paths]
+    jobs = [(path, h) for path, gs in zip(paths, groups) for g in gs for h in g]
+    rough = [sheet_partial.rough_sides(h) for _, h in jobs]
+    refined = iter(sides.refine_many(
+        image_bgr, [r for r, _ in rough], [h.seen_ends for _, h in jobs], (band,) + fine_bands,
+        [n for _, n in rough], FIRST_PASS_SUPPORT, [p.checked for p, _ in jobs],
+        lambda c, out: jobs[c][0].screen is None or jobs[c][0].screen(jobs[c][1], out)))
+    for path, path_groups in zip(paths, groups):
+        if found:
+            return  # (a path after one that found a sheet is not tried)
+        for group in path_groups:
+            best: tuple[float, Found] | None = None
+            for hyp in group:
+                sides_out = next(refined)
+                out = None if sides_out is None else path.finish(hyp, sides_out)
+                if out is None or not sheet_checks.big_enough(out[5], image_bgr.shape, cfg) or \
+                        not sheet_checks.passes(image_bgr, out[:5], cfg, K, hyp.seen_ends,
+                                                dist=dist) or \
+                        not sheet_checks.covered(image_bgr, out[0][3], out[3], cfg):
+                    continue
+                support = float(out[1].mean())
+                vs = np.array([support] * 3 + [0.5 * support * float(hyp.seen_frac.min())])
+                # A corner placed by the aspect: scored lower, and ranked after corners seen.
+                rank = support * float(out[6].min()) if len(out) > 6 else support
+                vs = vs * out[6] if len(out) > 6 else vs
+                if best is None or rank > best[0]:
+                    best = (rank, (float(vs.mean()), out[0], out[5], vs))
+            if best is not None and all(np.abs(best[1][1] - f[1]).max() > 4.0 for f in found):
+                found.append(best[1])
 
 
 def _guess_K(focal_frac: float, shape: tuple[int, ...]) -> Array:

@@ -150,9 +150,17 @@ def rectangle_aspect(corners_px: Array, K: Array | None, focal_px: float,
     is unknown (``K`` None), which falls back to ``focal_px`` when the sides are too close to
     parallel to tell; with the intrinsics the homography gives the side ratio.
     """
-    n2, n3 = (v[0] for v in _side_directions(corners_px[None]))
+    # Scalar arithmetic (``_side_directions`` of one quadrilateral): called on every candidate.
+    (x0, y0), (x1, y1), (x2, y2), (x3, y3) = (map(float, p) for p in corners_px)
+    c03 = (y0 - y2, x2 - x0, x0 * y2 - y0 * x2)  # m0 x m3 (m = corners 0, 1, 3, 2)
+    k2 = (c03[0] * x3 + c03[1] * y3 + c03[2]) / (
+        (y1 - y2) * x3 + (x2 - x1) * y3 + (x1 * y2 - y1 * x2))
+    k3 = (c03[0] * x1 + c03[1] * y1 + c03[2]) / (
+        (y3 - y2) * x1 + (x2 - x3) * y1 + (x3 * y2 - y3 * x2))
+    n2 = (k2 * x1 - x0, k2 * y1 - y0, k2 - 1.0)
+    n3 = (k3 * x3 - x0, k3 * y3 - y0, k3 - 1.0)
     if K is None:
-        u0, v0 = centre_px
+        u0, v0 = float(centre_px[0]), float(centre_px[1])
         f2 = focal_px ** 2
         if abs(n2[2] * n3[2]) > 1e-12:
             est = -((n2[0] * n3[0] - (n2[0] * n3[2] + n2[2] * n3[0]) * u0
@@ -161,8 +169,13 @@ def rectangle_aspect(corners_px: Array, K: Array | None, focal_px: float,
                        + n2[2] * n3[2] * v0 ** 2)) / (n2[2] * n3[2])
             if (0.3 * focal_px) ** 2 < est < (3.0 * focal_px) ** 2:
                 f2 = est
-        K = np.array([[np.sqrt(f2), 0.0, u0], [0.0, np.sqrt(f2), v0], [0.0, 0.0, 1.0]])
-    return float(_aspects_with_K(n2[None], n3[None], K)[0])
+        K = np.array([[math.sqrt(f2), 0.0, u0], [0.0, math.sqrt(f2), v0], [0.0, 0.0, 1.0]])
+    Ki = np.linalg.inv(K).tolist()
+    a2 = [r[0] * n2[0] + r[1] * n2[1] + r[2] * n2[2] for r in Ki]
+    a3 = [r[0] * n3[0] + r[1] * n3[1] + r[2] * n3[2] for r in Ki]
+    ratio = math.sqrt((a2[0] * a2[0] + a2[1] * a2[1] + a2[2] * a2[2])
+                      / max(a3[0] * a3[0] + a3[1] * a3[1] + a3[2] * a3[2], 1e-18))
+    return max(ratio, 1.0 / max(ratio, 1e-12))
 
 
 def rectangle_aspects(corners_px: Array, K: Array) -> Array:
@@ -174,14 +187,16 @@ def rectangle_aspects(corners_px: Array, K: Array) -> Array:
 
 def _side_directions(corners_px: Array) -> tuple[Array, Array]:
     """(M, 3) homogeneous images of the two side directions of M quadrilaterals (M, 4, 2)."""
-    m = np.concatenate([corners_px[:, [0, 1, 3, 2]], np.ones(corners_px.shape[:2] + (1,))],
-                       axis=2)  # m1 (0,0) m2 (w,0) m3 (0,h)
-    c03 = np.cross(m[:, 0], m[:, 3])
-    k2 = np.einsum('mi,mi->m', c03, m[:, 2]) / np.einsum('mi,mi->m', np.cross(m[:, 1], m[:, 3]),
-                                                         m[:, 2])
-    k3 = np.einsum('mi,mi->m', c03, m[:, 1]) / np.einsum('mi,mi->m', np.cross(m[:, 2], m[:, 3]),
-                                                         m[:, 1])
-    return k2[:, None] * m[:, 1] - m[:, 0], k3[:, None] * m[:, 2] - m[:, 0]
+    # m0..m3 = corners 0, 1, 3, 2 with w = 1; cross products written out (np.cross is slow).
+    x0, y0 = corners_px[:, 0, 0], corners_px[:, 0, 1]
+    x1, y1 = corners_px[:, 1, 0], corners_px[:, 1, 1]
+    x2, y2 = corners_px[:, 2, 0], corners_px[:, 2, 1]
+    x3, y3 = corners_px[:, 3, 0], corners_px[:, 3, 1]
+    c0, c1, c2 = y0 - y2, x2 - x0, x0 * y2 - y0 * x2  # m0 x m3
+    k2 = (c0 * x3 + c1 * y3 + c2) / ((y1 - y2) * x3 + (x2 - x1) * y3 + (x1 * y2 - y1 * x2))
+    k3 = (c0 * x1 + c1 * y1 + c2) / ((y3 - y2) * x1 + (x2 - x3) * y1 + (x3 * y2 - y3 * x2))
+    return (np.stack([k2 * x1 - x0, k2 * y1 - y0, k2 - 1.0], axis=1),
+            np.stack([k3 * x3 - x0, k3 * y3 - y0, k3 - 1.0], axis=1))
 
 
 def _aspects_with_K(n2: Array, n3: Array, K: Array) -> Array:

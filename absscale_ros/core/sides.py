@@ -302,14 +302,15 @@ def refine_checked(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
 
 def refine_many(image_bgr: npt.NDArray[np.uint8], lines_: list[Array], ends: list[Array],
                 bands_px: tuple[float, ...], ns: list[int], min_first_support: float | Array,
-                checked: npt.NDArray[np.intp] | None = None,
+                checked: npt.NDArray[np.intp] | None | list[npt.NDArray[np.intp] | None] = None,
                 screen: Callable[[int, Refined], bool] | None = None,
                 blurred: bool = False) -> list[Refined | None]:
     """
     ``refine_checked`` of several candidates (each its (S_c, 3) lines, (S_c, 2, 2) ends and
     profile count) in one ``refine`` call per pass, with the same results: a call costs about
-    a millisecond of numpy overhead whatever the number of sides. ``screen(c, first)``: False
-    drops candidate ``c`` after the first pass too; ``blurred``: see ``refine``.
+    a millisecond of numpy overhead whatever the number of sides. ``checked``: as in
+    ``refine_checked``, or a list of one per candidate; ``screen(c, first)``: False drops
+    candidate ``c`` after the first pass too; ``blurred``: see ``refine``.
     """
     if not lines_:
         return []
@@ -326,8 +327,8 @@ def refine_many(image_bgr: npt.NDArray[np.uint8], lines_: list[Array], ends: lis
     keep = []
     for c in range(len(lines_)):
         sup = part(first, c, starts)[1]
-        keep.append(bool(((sup if checked is None else sup[checked])
-                          >= min_first_support).all())
+        chk = checked[c] if isinstance(checked, list) else checked
+        keep.append(bool(((sup if chk is None else sup[chk]) >= min_first_support).all())
                     and (screen is None or screen(c, part(first, c, starts))))
     out: list[Refined | None] = [part(first, c, starts) if k else None
                                  for c, k in enumerate(keep)]
