@@ -283,13 +283,12 @@ def plausible(work_bgr: npt.NDArray[np.uint8], contour: npt.NDArray[np.int32],
     x1, y1 = min(x + w + m, work_bgr.shape[1]), min(y + h + m, work_bgr.shape[0])
     inside = np.zeros((y1 - y0, x1 - x0), np.uint8)
     cv2.drawContours(inside, [contour - np.array([x0, y0], np.int32)], 0, 1, -1)
-    near = cv2.dilate(inside, _square(RING_PX[0]))
-    far = cv2.dilate(inside, _square(m))
     roi = work_bgr[y0:y1, x0:x1]
     mean_in = np.array(cv2.mean(roi, inside)[:3])
     if mean_in.max() - mean_in.min() > (cfg.max_saturation + SAT_SLACK) * max(mean_in.max(), 1.0):
         return None
-    ring_px = roi[far > near][::RING_STEP]
+    ring_px = roi[cv2.dilate(inside, _square(m)) > cv2.dilate(inside, _square(RING_PX[0]))]
+    ring_px = ring_px[::RING_STEP]
     if not len(ring_px):
         return None  # nothing around it in the image: no surface it lies on
     ring = np.median(ring_px, axis=0)  # the median skips a grout line in the ring
@@ -303,8 +302,9 @@ def offset(poly: Array, dist_px: float) -> Array | None:
     if dist_px == 0.0:
         return poly
     centre = poly.mean(axis=0)
-    ls = [lines.line_through(a, b, centre) - np.array([0.0, 0.0, dist_px])
-          for a, b in zip(poly, np.roll(poly, -1, axis=0))]
+    ls = [lines.line_through(a, b, centre) for a, b in zip(poly, np.roll(poly, -1, axis=0))]
+    for ln in ls:
+        ln[2] -= dist_px
     out = [lines.intersect(ls[k - 1], ls[k]) for k in range(len(ls))]
     return None if any(p is None for p in out) else np.array(out)
 

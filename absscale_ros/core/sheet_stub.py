@@ -164,9 +164,9 @@ def far_corners(corner_l: Array, b: Array, l_lt: Array, l_rb: Array, K: Array,
     Return the two places (side L B short or long) where the rectangle of ``aspect`` puts the
     far end T of side L T, from corners L and B and the lines L T and R B (parallel in 3D).
     """
-    d1 = np.linalg.solve(K, _cross(l_lt, l_rb))
-    r_l = np.linalg.solve(K, np.array([corner_l[0], corner_l[1], 1.0]))
-    r_b = np.linalg.solve(K, np.array([b[0], b[1], 1.0]))
+    # One solve for the three right-hand sides (the same LU, the same numbers as three).
+    d1, r_l, r_b = np.linalg.solve(K, np.array([
+        _cross(l_lt, l_rb), [corner_l[0], corner_l[1], 1.0], [b[0], b[1], 1.0]]).T).T
     if abs(float(r_b @ d1)) < 1e-12:
         return []
     x_b = (r_l @ d1) / (r_b @ d1) * r_b  # L B perpendicular to d1, depth of L at 1
