@@ -228,3 +228,24 @@ def test_a_corner_seen_from_afar_and_again_near_is_merged_live_60s() -> None:
     # Merging by the share alone leaves 10 corners for 8: nothing claimed (the failure).
     singles = scale.without_duplicates(rows[:, :3], rows[:, 4], CFG.duplicate_share)
     assert len(singles) == 10
+
+
+@pytest.mark.parametrize('kind,size,n', [('sheet', LETTER, 3), ('sheet', (0.21, 0.297), 4),
+                                         ('cube', (0.8,), 5), ('cube', (0.8,), 8)])
+def test_assignments_up_to_symmetry_fit_as_well_as_all(kind, size, n) -> None:
+    # Only the assignments giving model vertex 0 to the first point are scored (the models'
+    # symmetry takes any vertex to any other): the best misfit is the one over all of them.
+    from itertools import permutations
+    rng = np.random.default_rng(n)
+    model = scale.model_vertices_m(kind, size)
+    for _ in range(5):
+        pts = _reconstructed(kind, size, 0.7, 0.004, rng).points[:n]
+        _, misfit = scale.assign_to_model(pts, model, scale.ScaleConfig(max_shape_residual=1.0,
+                                                                        ambiguity_ratio=0.0))
+        i, j = np.triu_indices(n, 1)
+        d = np.linalg.norm(pts[i] - pts[j], axis=1)
+        every = np.array(list(permutations(range(len(model)), n)))
+        md = np.linalg.norm(model[every[:, i]] - model[every[:, j]], axis=2)
+        s = (md @ d) / np.einsum('ij,ij->i', md, md)
+        best = np.sqrt(np.mean(((s[:, None] * md - d) / d) ** 2, axis=1)).min()
+        assert misfit == pytest.approx(best, rel=1e-12, abs=1e-15)
