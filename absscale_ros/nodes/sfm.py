@@ -60,6 +60,9 @@ class SfmNode(Node):
         self._last: sfm.UpdateResult | None = None
         self.statuses: dict[str, int] = {}
         self._times_ms: list[float] = []
+        # Stamps of the keyframes the map was given (live: those not skipped), in order: the
+        # core run over them offline replays what this map saw (`bench sfm --keyframes-from`).
+        self.keyframe_stamps_ns: list[int] = []
         self._pubs = {name: self.create_publisher(cls, f'/absscale/{name}', common.RELIABLE)
                       for name, cls in (('sparse_cloud', PointCloud2), ('keyframe_path', Path),
                                         ('target_points', PointCloud2))}
@@ -271,6 +274,7 @@ class SfmNode(Node):
         self.features_prefetched += features is not None
         sfm_outputs.compact(self.engine)  # finished segments to arrays: memory of long scans
         self._times_ms.append(1e3 * (time.perf_counter() - t0))
+        self.keyframe_stamps_ns.append(stamp_ns)
         self.statuses[self._last.status] = self.statuses.get(self._last.status, 0) + 1
         return self._publish(stamp_ns)
 
@@ -324,6 +328,7 @@ class SfmNode(Node):
                                'statuses': dict(self.statuses)}
         if full_rms:  # the whole run (not in every keyframe's diagnostics)
             out['update_ms'] = [round(t, 1) for t in self._times_ms]
+            out['keyframe_stamps_ns'] = list(self.keyframe_stamps_ns)
             if self.live:
                 out['timeline_ns'] = list(self.timeline_ns)
                 out['batch_ms'] = [round(t, 1) for t in self.batch_ms]

@@ -62,6 +62,7 @@ def test_a_live_sfm_behind_takes_the_newest_keyframe_and_chains_the_skipped_step
     assert np.allclose(step.centre, rel[:3, 3], atol=1e-6)
     r = node.report()
     assert r['keyframes_in'] == 2 and r['keyframes_skipped'] == 4
+    assert r['keyframe_stamps_ns'] == [stamps[0], stamps[-1]]  # what an offline replay takes
     values = conversions.diagnostic_values(probe.diags[-1].status[0])
     assert values['keyframes_skipped'] == '4'  # the user sees it
 
