@@ -237,9 +237,8 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
         unfound += _accept_quads(image_bgr, [(q + 0.5) / scale - 0.5
                                              for q in cands.edge_quads()], band, cfg, K, found,
                                  dist, small)
-    regions = cands.regions
     if not found and cfg.line_candidates:
-        more = sheet_candidates.colour_quads(work, regions, cfg) + \
+        more = sheet_candidates.colour_quads(work, cands.regions, cfg) + \
             sheet_candidates.detached_quads(work, cfg)
         _accept_quads(image_bgr, [(q + 0.5) / scale - 0.5 for q in more], band, cfg, K, found,
                       dist)
@@ -248,10 +247,9 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
         if line_quads:
             _accept_quads(image_bgr, [q for q, _ in line_quads], line_quads[0][1], cfg, K, found,
                           dist)
-    if not found and small:
-        regions = [r for r in regions if not _whole_small(r[0], small, scale)]
     if not found:
-        _accept_hidden(image_bgr, regions, scale, band, cfg, K, found, dist)
+        hidden = [r for r in cands.white_regions if not _whole_small(r[0], small, scale)]
+        _accept_hidden(image_bgr, hidden, scale, band, cfg, K, found, dist)
     if not found and cfg.blur_band_frac > 0.0:
         _accept_blurred(image_bgr, unfound, band, cfg, K, found, dist)
     found.sort(key=lambda f: -f[0])
