@@ -4,7 +4,9 @@ Accuracy and completeness of a dense cloud against a known scene mesh (simulator
 Accuracy: distance of each dense point to the true surface, after a *rigid* (not scaled)
 alignment of the metric keyframe trajectory to the true one, so a scale error counts.
 Completeness: of the true surface points that at least two keyframes see, the fraction with a
-dense point within a radius. Visibility is decided by ray casting the mesh from each keyframe.
+dense point within a radius, also per fifth of them by depth (two-view precision falls with
+depth squared: the far fifths are where completeness is lost). Visibility is decided by ray
+casting the mesh from each keyframe.
 """
 from dataclasses import dataclass
 
@@ -68,6 +70,9 @@ class DenseScore:
     distance_p90_m: float
     completeness: float
     surface_samples: int
+    # completeness per fifth of the samples by depth, nearest first, and the fifths' edges, m
+    completeness_by_depth: tuple[float, ...] = ()
+    depth_fifths_m: tuple[float, ...] = ()
 
     @property
     def median_rel(self) -> float:
@@ -88,6 +93,11 @@ def score(points: FloatArray, mesh: SceneMesh, samples: FloatArray, sample_depth
     d = mesh.distance(points) if len(points) else np.array([np.inf])
     near = cKDTree(points).query(samples, distance_upper_bound=radius_m)[0] \
         if len(points) and len(samples) else np.full(len(samples), np.inf)
+    found = np.isfinite(near)
+    edges = np.quantile(sample_depths, np.linspace(0.0, 1.0, 6)) if len(samples) else []
+    band = np.clip(np.searchsorted(edges, sample_depths, side='right') - 1, 0, 4)
     return DenseScore(len(points), float(np.median(sample_depths)), float(np.median(d)),
-                      float(np.percentile(d, 90)), float(np.mean(np.isfinite(near))),
-                      len(samples))
+                      float(np.percentile(d, 90)), float(np.mean(found)), len(samples),
+                      tuple(float(np.mean(found[band == k])) for k in range(5)
+                            if len(samples)),
+                      tuple(float(e) for e in edges))

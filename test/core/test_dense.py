@@ -1,6 +1,7 @@
 """Dense stereo and fusion on rendered keyframes with exact poses, against the scene mesh."""
 
-from absscale_ros.core import dense_cloud, dense_fusion, dense_stereo, dense_sweep
+from absscale_ros.core import dense_cloud, dense_evaluation, dense_fusion, dense_stereo, \
+    dense_sweep
 from dense_scenes import forward_keyframes, forward_walk, grazing_keyframes, \
     sideways_keyframes
 import numpy as np
@@ -259,3 +260,18 @@ def test_voxel_sums_are_the_voxel_means_of_the_parts_held() -> None:
     pts = rng.normal(size=(50, 3))
     A = rng.normal(size=(3, 3))
     assert np.allclose(dense_stereo.transform(pts, A, A[0]), pts @ A.T + A[0], atol=1e-12)
+
+
+def test_completeness_is_reported_per_fifth_of_the_samples_by_depth() -> None:
+    images, cam, poses, mesh = sideways_keyframes()
+    depth = dense_stereo.compute_depth(images[2], images[0], cam, poses[2], poses[0], 0, STEREO)
+    pts, _ = depth.points_camera(4)
+    world = pts @ poses[2][:3, :3].T + poses[2][:3, 3]
+    z = pts[:, 2]
+    # A cloud of only the nearer half of the view: the near fifths complete, the far ones not.
+    near = world[z < np.median(z)]
+    s = dense_evaluation.score(near, mesh, world, z, 0.02)
+    assert len(s.completeness_by_depth) == 5 and len(s.depth_fifths_m) == 6
+    assert s.completeness_by_depth[:2] == (1.0, 1.0) and s.completeness_by_depth[4] == 0.0
+    assert np.isclose(np.mean(s.completeness_by_depth), s.completeness, atol=0.01)
+    assert s.depth_fifths_m[0] == z.min() and s.depth_fifths_m[-1] == z.max()
