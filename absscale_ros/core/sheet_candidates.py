@@ -184,8 +184,10 @@ class Candidates:
                 # A region the border cuts has a side along it with no edge to refine: not for
                 # the hidden-corner paths (their hypotheses fail or are refused there).
                 x, y, w, h = cv2.boundingRect(c)
+                # (Colour-edge regions only serve the line mode's colour seeds: ``white_regions``.)
                 inner = min(x, y) > 1 and x + w < shape[1] - 1 and \
-                    y + h < shape[0] - 1 and i != QUAD_ONLY_MASK
+                    y + h < shape[0] - 1 and i != QUAD_ONLY_MASK and \
+                    (i < FREE_MASK or cfg.line_candidates)
                 quad = lines.rough_quad(c) if solidity >= cfg.min_solidity else None
                 quad = None if quad is None else offset(quad, grow)
                 # A sheet cut by the image border has no trustworthy corners, and another

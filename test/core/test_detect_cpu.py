@@ -1,4 +1,5 @@
 """The sheet detector's CPU savings keep its answers, on rendered frames."""
+from dataclasses import replace
 from pathlib import Path
 import sys
 
@@ -50,11 +51,12 @@ def test_hidden_paths_see_whiteness_regions_only():
     true_px, img = _occluded(box)
     cfg = detect_sheet.SheetConfig(sheet='a4')
     work = sheet_candidates.shrink(img, cfg.work_max_side_px / 1280.0)
-    cands = sheet_candidates.Candidates(work, cfg)
-    white = [c for c, _ in cands.regions]
-    cands.edge_quads()
-    assert len(cands.regions) > len(white)
-    assert [c.tobytes() for c, _ in cands.white_regions] == [c.tobytes() for c in white]
+    for line_mode in (False, True):  # (the colour-edge regions are kept for the line mode)
+        cands = sheet_candidates.Candidates(work, replace(cfg, line_candidates=line_mode))
+        white = [c for c, _ in cands.regions]
+        cands.edge_quads()
+        assert len(cands.regions) > len(white) if line_mode else len(cands.regions) == len(white)
+        assert [c.tobytes() for c, _ in cands.white_regions] == [c.tobytes() for c in white]
     dets = detect_sheet.detect_sheets(img, cfg)
     assert len(dets) == 1
     far = np.hypot(*(dets[0].vertices_px[:, None] - true_px[None]).T).min(axis=0)
