@@ -42,7 +42,7 @@ def test_a_live_sfm_behind_takes_the_newest_keyframe_and_chains_the_skipped_step
             probe.send(seq.camera, stamps[k], image, _rows(sfm_scenes.detections(seq, k, rng)[0]),
                        _tracked(seq, k, stamps))
         # Keyframe 0 is being added; 1-4 were each replaced by a newer one while waiting.
-        assert spin_until(executor, lambda: node.keyframes_skipped == 4, timeout_s=30.0)
+        assert spin_until(executor, lambda: node.live.skipped == 4, timeout_s=30.0)
         release.set()
         assert spin_until(executor, lambda: len(probe.got[OUTPUTS[1]]) == 2, timeout_s=30.0)
         spin_until(executor, lambda: False, timeout_s=0.5)  # nothing else comes
@@ -87,11 +87,11 @@ def test_a_live_sfm_adjusts_after_publishing_and_keeps_the_offline_map(context) 
                        _tracked(seq, k, stamps))
             # Idle again (a due batch adjustment included) before the next keyframe comes.
             assert spin_until(executor, lambda: len(probe.got[OUTPUTS[1]]) == k + 1
-                              and not node._updating, timeout_s=30.0)
+                              and not node.live.busy, timeout_s=30.0)
     finally:
         executor.shutdown()
         node.destroy_node()
-    assert node.keyframes_skipped == 0 and len(node.batch_ms) >= 1
+    assert node.live.skipped == 0 and len(node.live.batch_ms) >= 1
     cfg = sfm.SfmConfig()
     cfg = sfm.replace(cfg, graph_cfg=sfm.replace(cfg.graph_cfg, batch_every=3))
     engine = sfm.IncrementalSfm(seq.camera, cfg, np.random.default_rng(0))
@@ -101,6 +101,6 @@ def test_a_live_sfm_adjusts_after_publishing_and_keeps_the_offline_map(context) 
             _rows(sfm_scenes.detections(seq, k, rng)[0])), _tracked(seq, k, stamps))
     # The node's map after its last deferred adjustment (its last path went out before it).
     ids, T = engine.current.map.poses()
-    node_ids, node_T = node.engine.current.map.poses()
+    node_ids, node_T = node.session.engine.current.map.poses()
     assert len(ids) == len(node_ids) == 6
     assert np.allclose(node_T[:, :3, 3], T[:, :3, 3], atol=1e-5)
