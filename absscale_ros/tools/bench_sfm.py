@@ -2,16 +2,18 @@
 ``absscale bench sfm BAG...``: incremental SfM accuracy and speed against simulator truth.
 
 Keyframes are every ``--every``-th frame, or the keyframe selector's choice (``--select``, with
-the ground-truth target areas), or exactly those of an ``absscale run`` (``--keyframes-from
-report.json``). Vertices are the ground-truth ``vertices_px`` of visible vertices plus Gaussian
-noise (``--vertex-noise-px``), or the vertex detector's (``--detector``; then a landmark is
-scored against the nearest true vertex). Sources are bags with ``BAG.gt.json`` beside them, or
-``--sim SCENE:SEED`` rendered on the fly. Prints per bag: camera centre RMSE after a Sim(3)
-(Umeyama) alignment as % of the trajectory length, reprojection RMS, vertex landmarks and their
-3D error (same alignment) as % of the scene extent (all, and those the scale node would use),
-median and max update time per keyframe (wall, and CPU: on a shared machine wall time
-overstates), segments; optionally the same keyframes through pycolmap. ``--run DIR`` (one per
-BAG) instead scores the scale factor of a finished ``absscale run`` against the truth.
+the ground-truth target areas), or exactly those the map of an ``absscale run`` was given
+(``--keyframes-from report.json``: live, the keyframes it did not skip, so one command replays
+a live run offline). Vertices are the ground-truth ``vertices_px`` of visible vertices plus
+Gaussian noise (``--vertex-noise-px``), or the vertex detector's (``--detector``; then a
+landmark is scored against the nearest true vertex). Sources are bags with ``BAG.gt.json``
+beside them, or ``--sim SCENE:SEED`` rendered on the fly. Prints per bag: camera centre RMSE
+after a Sim(3) (Umeyama) alignment as % of the trajectory length, reprojection RMS, vertex
+landmarks and their 3D error (same alignment) as % of the scene extent (all, and those the
+scale node would use), median and max update time per keyframe (wall, and CPU: on a shared
+machine wall time overstates), segments; optionally the same keyframes through pycolmap.
+``--run DIR`` (one per BAG) instead scores the scale factor of a finished ``absscale run``
+against the truth.
 """
 import argparse
 import json
@@ -40,7 +42,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--detector', action='store_true',
                         help='vertices from the vertex detector instead of ground truth + noise')
     parser.add_argument('--keyframes-from', metavar='REPORT',
-                        help="keyframes: the stamps in an `absscale run` report.json")
+                        help='keyframes: those the sfm map of an `absscale run` was given '
+                             '(its report.json; live: those not skipped)')
     parser.add_argument('--run', action='append', default=[], metavar='DIR',
                         help='instead: scale error of the `absscale run` output DIR of each BAG')
     parser.add_argument('--vertex-noise-px', type=float, default=0.3)
@@ -52,10 +55,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              'YAML path; default: the core defaults)')
 
 
+def run_keyframe_stamps(report_path: str) -> list[int]:
+    """
+    The keyframes an ``absscale run``'s map was given (report.json ``nodes.sfm``; live, those
+    it did not skip), or, in a report from before the sfm node listed them, those the
+    keyframe selector chose.
+    """
+    with open(report_path) as f:
+        nodes = json.load(f)['nodes']
+    stamps = nodes.get('sfm', {}).get('keyframe_stamps_ns')
+    return stamps if stamps is not None else nodes['keyframe_selector']['keyframe_stamps_ns']
+
+
 def _keyframe_indices(path: str, gt: dict[str, Any], args: argparse.Namespace) -> set[int]:
     if getattr(args, 'keyframes_from', None):
-        with open(args.keyframes_from) as f:
-            stamps = set(json.load(f)['nodes']['keyframe_selector']['keyframe_stamps_ns'])
+        stamps = set(run_keyframe_stamps(args.keyframes_from))
         return {k for k, fr in enumerate(gt['frames']) if fr['stamp_ns'] in stamps}
     if not args.select:
         return set(range(0, len(gt['frames']), args.every))
