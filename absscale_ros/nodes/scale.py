@@ -46,6 +46,7 @@ class ScaleNode(Node):
         self._diag = common.DiagnosticsPublisher(self, 'metric scale')
         self._ack = common.StepAck(self)
         self.estimate: scale.ScaleEstimate | None = None
+        self._published_factor: float | None = None
         self.history: list[dict[str, float]] = []
         self._cloud: Any = None
         self._path: Any = None
@@ -113,8 +114,9 @@ class ScaleNode(Node):
             self._why_not = str(err)
             self.get_logger().info(f'no metric scale yet: {err}', throttle_duration_sec=10.0)
             return []
-        changed = self.estimate is None or \
-            abs(est.factor / self.estimate.factor - 1.0) > self._min_change
+        # Against the factor last published, not the last estimate: small steps add up.
+        changed = self._published_factor is None or \
+            abs(est.factor / self._published_factor - 1.0) > self._min_change
         self.estimate = est
         self.history.append({'stamp_ns': conversions.stamp_to_ns(msg.header.stamp),
                              'factor': est.factor, 'sigma': est.sigma})
@@ -124,6 +126,7 @@ class ScaleNode(Node):
         est = self.estimate
         assert est is not None
         stamp_ns = conversions.stamp_to_ns(stamp)
+        self._published_factor = est.factor
         self._scale_pub.publish(conversions.scale_to_msg({
             'factor': est.factor, 'sigma': est.sigma, 'ci_low': est.interval[0],
             'ci_high': est.interval[1], 'edges': len(est.measured), 'objects': est.objects_used}))

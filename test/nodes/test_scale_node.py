@@ -16,13 +16,13 @@ LETTER = (0.2159, 0.2794)
 UNIT_M = 0.25  # metres per SfM unit in this fake reconstruction
 
 
-def _targets_msg(n_obs: int, stamp_ns: int) -> PointCloud2:
+def _targets_msg(n_obs: int, stamp_ns: int, unit_m: float = UNIT_M) -> PointCloud2:
     corners = scale.model_vertices_m('sheet', LETTER)[[2, 3, 0, 1]] + [1.0, 2.0, 0.5]
     n = len(corners)
     extra = {'object_id': np.zeros(n, np.int32), 'vertex_id': np.arange(n, dtype=np.int32),
              'n_obs': np.full(n, n_obs, np.int32), 'angle_deg': np.full(n, 12.0, np.float32),
              'target_type': np.zeros(n, np.int32)}
-    return conversions.xyz_rgb_to_cloud_msg(corners / UNIT_M, None, stamp_ns, 'sfm', extra)
+    return conversions.xyz_rgb_to_cloud_msg(corners / unit_m, None, stamp_ns, 'sfm', extra)
 
 
 def test_scaled_cloud_path_and_factor(context) -> None:
@@ -57,3 +57,23 @@ def test_scaled_cloud_path_and_factor(context) -> None:
     assert np.array_equal(conversions.unpack_rgb(got['rgb']), [[255, 0, 0], [0, 255, 0]])
     assert clouds[-1].header.frame_id == 'map'
     assert conversions.scale_from_msg(factors[-1])['factor'] == pytest.approx(UNIT_M)
+
+
+def test_small_changes_that_add_up_are_republished(context) -> None:
+    """min_change is measured from the factor last published, not from the last estimate."""
+    node = ScaleNode(context=context, parameter_overrides=[
+        rclpy.parameter.Parameter('min_change', value=0.01)])
+    pub_node = rclpy.create_node('fake_sfm_steps', context=context)
+    pub = pub_node.create_publisher(PointCloud2, '/absscale/target_points', RELIABLE)
+    factors: list = []
+    pub_node.create_subscription(Float64MultiArray, '/absscale/scale', factors.append, LATCHED)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    executor.add_node(pub_node)
+    spin_until(executor, lambda: pub.get_subscription_count() > 0)
+    for k, step in enumerate((0.0, 0.006, 0.012)):  # each step 0.6 % past the one before
+        pub.publish(_targets_msg(6, 10 + k, UNIT_M * (1.0 + step)))
+        assert spin_until(executor, lambda: len(node.history) == k + 1)
+    assert spin_until(executor, lambda: len(factors) == 2)
+    got = [conversions.scale_from_msg(f)['factor'] for f in factors]
+    assert got == pytest.approx([UNIT_M, UNIT_M * 1.012], rel=1e-6)
