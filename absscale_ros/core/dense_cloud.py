@@ -12,14 +12,18 @@ FloatArray = npt.NDArray[np.float64]
 
 def clean(points_cam: FloatArray, colours_bgr: npt.NDArray[np.uint8], cfg: Any) -> Any:
     """
-    One keyframe's points (camera frame): voxel-downsampled, statistical outliers removed,
-    normals facing the camera. ``cfg`` has ``voxel_m``, ``outlier_neighbours``,
-    ``outlier_std``, ``normal_neighbours`` (``dense_fusion.FusionConfig``).
+    One keyframe's points (camera frame): voxel-downsampled, statistical outliers removed
+    (``outlier_std`` 0: not), normals facing the camera. ``cfg`` has ``voxel_m``,
+    ``outlier_neighbours``, ``outlier_std``, ``normal_neighbours`` (``dense_fusion.FusionConfig``).
+
+    The statistical test compares each point's mean distance to its neighbours with all the
+    others': surfaces sampled sparser (far, or seen at a grazing angle) fail it whether right
+    or wrong.
     """
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points_cam))
     pc.colors = o3d.utility.Vector3dVector(colours_bgr[:, ::-1] / 255.0)
     pc = pc.voxel_down_sample(cfg.voxel_m)
-    if len(pc.points) > cfg.outlier_neighbours:
+    if cfg.outlier_std > 0.0 and len(pc.points) > cfg.outlier_neighbours:
         pc, _ = pc.remove_statistical_outlier(cfg.outlier_neighbours, cfg.outlier_std)
     if len(pc.points) >= 3:
         pc.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(cfg.normal_neighbours))

@@ -43,6 +43,7 @@ class FusionConfig:
     average: bool = True  # a kept point is the mean of the depth maps that agree with it
     outlier_neighbours: int = 16  # statistical outlier removal: neighbours considered
     outlier_std: float = 2.0  # ... and the mean-distance threshold, in standard deviations
+    # (0: no statistical removal)
     normal_neighbours: int = 20  # points used for a normal
     move_voxels: float = 0.25  # a keyframe whose new pose moves its points less stays fused
 
