@@ -38,3 +38,18 @@ def test_a_live_runs_processed_keyframes_are_replayed_not_the_selectors(tmp_path
     assert bench_sfm.run(args) == 0
     r = json.loads(capsys.readouterr().out)
     assert len(r) == 1 and next(iter(r.values()))['keyframes_in'] == len(live)
+
+
+def test_the_camera_error_is_a_share_of_the_scored_segments_own_path(tmp_path, capsys) -> None:
+    with open(BAG + '.gt.json') as f:
+        stamps = [fr['stamp_ns'] for fr in json.load(f)['frames']]
+    parser = argparse.ArgumentParser()
+    bench_sfm.add_arguments(parser)
+    args = parser.parse_args([BAG, '--keyframes-from', _report(tmp_path, stamps[::6], None),
+                              '--json'])
+    assert bench_sfm.run(args) == 0
+    fig = next(iter(json.loads(capsys.readouterr().out).values()))
+    assert fig['registered'] >= 3
+    # Never the whole run's path, which would flatter a map split into segments.
+    assert 0.0 < fig['segment_m'] <= fig['trajectory_m'] + 1e-9
+    assert fig['centre_rmse_pct'] == 100.0 * fig['centre_rmse_m'] / fig['segment_m']

@@ -210,8 +210,11 @@ def score(engine: sfm.IncrementalSfm, poses: dict[int, np.ndarray],
         return out
     gt_c = np.array([poses[i][:3, 3] for i in ids])
     s, R, t = align.umeyama(T[:, :3, 3], gt_c)
+    # Against the scored segment's own path: the whole run's would flatter a split map.
+    seg_c = np.array([poses[k][:3, 3] for k in sorted(ids)])
+    out['segment_m'] = float(np.sum(np.linalg.norm(np.diff(seg_c, axis=0), axis=1)))
     out['centre_rmse_m'] = align.rmse(align.apply(s, R, t, T[:, :3, 3]), gt_c)
-    out['centre_rmse_pct'] = 100.0 * out['centre_rmse_m'] / max(length_m, 1e-12)
+    out['centre_rmse_pct'] = 100.0 * out['centre_rmse_m'] / max(out['segment_m'], 1e-12)
     errs, usable = [], []
     for lm_id, lm in m.landmarks.items():
         if lm.label is None:
