@@ -39,6 +39,13 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _by_depth(r: dict[str, Any]) -> str:
+    """Completeness per fifth of the samples by depth: where a shortfall lies."""
+    fifths = r.get('completeness_by_depth') or ()
+    return ' (by depth fifth ' + ' / '.join(f'{100 * c:.0f}' for c in fifths) + ' %)' \
+        if fifths else ''
+
+
 def _line(r: dict[str, Any]) -> str:
     if 'error' in r:
         return f'{r["bag"]}: {r["error"]}'
@@ -47,6 +54,6 @@ def _line(r: dict[str, Any]) -> str:
             f'median {100 * r["median_rel"]:.3f} % p90 {100 * r["p90_rel"]:.3f} % '
             f'({1000 * r["distance_median_m"]:.1f} / {1000 * r["distance_p90_m"]:.1f} mm); '
             f'completeness {100 * r["completeness"]:.1f} % of {r["surface_samples"]} samples '
-            f'within {100 * r["radius_m"]:.0f} cm; update CPU median '
+            f'within {100 * r["radius_m"]:.0f} cm{_by_depth(r)}; update CPU median '
             f'{np.nan if r["update_s_median"] is None else r["update_s_median"]:.2f} s '
             f'(p95 {np.nan if r["update_s_p95"] is None else r["update_s_p95"]:.2f})')
