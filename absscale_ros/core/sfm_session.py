@@ -33,6 +33,9 @@ class SfmSession:
         # Stamps of the keyframes the map was given (live: those not skipped), in order: the
         # core run over them offline replays what this map saw (`bench sfm --keyframes-from`).
         self.keyframe_stamps_ns: list[int] = []
+        # ... and the tracked step each came with (None: none), so the replay checks its poses
+        # against the same motion the live map did.
+        self.keyframe_steps: list[dict[str, Any] | None] = []
         self.features_prefetched = 0  # keyframes whose features came from the worker
         # Re-entrant: held while the map changes, so a report from another thread reads it whole.
         self._lock = threading.RLock()
@@ -66,6 +69,10 @@ class SfmSession:
             sfm_outputs.compact(self.engine)  # finished segments to arrays: memory of long scans
             self.times_ms.append(1e3 * (self._clock_s() - t0))
             self.keyframe_stamps_ns.append(stamp_ns)
+            self.keyframe_steps.append(None if step is None else {
+                'ref_stamp_ns': int(step.ref_stamp_ns),
+                'rotation': [float(v) for v in np.ravel(step.rotation)],
+                'centre': [float(v) for v in np.ravel(step.centre)]})
             self.count(self.last.status)
             return self.last
 
@@ -100,6 +107,7 @@ class SfmSession:
         if full_rms:  # the whole run (not in every keyframe's diagnostics)
             out['update_ms'] = [round(t, 1) for t in self.times_ms]
             out['keyframe_stamps_ns'] = list(self.keyframe_stamps_ns)
+            out['keyframe_steps'] = list(self.keyframe_steps)
             out.update(live or {})
         if self.engine is not None:
             seg = sfm_outputs.best_segment(self.engine)

@@ -23,7 +23,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from absscale_ros import bagio, conversions
-from absscale_ros.core import align, sfm, sfm_outputs, sfm_vertices
+from absscale_ros.core import align, keyframes, sfm, sfm_outputs, sfm_vertices
 from absscale_ros.core import vertex_matching as vm
 from absscale_ros.core.types import CameraModel
 
@@ -67,13 +67,26 @@ def run_keyframe_stamps(report_path: str) -> list[int]:
     return stamps if stamps is not None else nodes['keyframe_selector']['keyframe_stamps_ns']
 
 
+def run_keyframe_steps(report_path: str) -> dict[int, keyframes.TrackedStep]:
+    """
+    The tracked step each keyframe of an ``absscale run``'s map came with, by stamp (none in
+    reports from before the sfm node listed them): a replay then checks its poses against the
+    same motion, which is what keeps aliased poses out of a live map.
+    """
+    with open(report_path) as f:
+        sfm_report = json.load(f)['nodes'].get('sfm', {})
+    pairs = zip(sfm_report.get('keyframe_stamps_ns', []), sfm_report.get('keyframe_steps', []))
+    return {stamp: keyframes.TrackedStep(
+        int(step['ref_stamp_ns']), np.reshape(np.array(step['rotation'], float), (3, 3)),
+        np.array(step['centre'], float)) for stamp, step in pairs if step is not None}
+
+
 def _keyframe_indices(path: str, gt: dict[str, Any], args: argparse.Namespace) -> set[int]:
     if getattr(args, 'keyframes_from', None):
         stamps = set(run_keyframe_stamps(args.keyframes_from))
         return {k for k, fr in enumerate(gt['frames']) if fr['stamp_ns'] in stamps}
     if not args.select:
         return set(range(0, len(gt['frames']), args.every))
-    from absscale_ros.core import keyframes
     from absscale_ros.tools import bench_keyframes
     decisions, _ = bench_keyframes.select(path, keyframes.KeyframeConfig(),
                                           bench_keyframes.gt_areas(gt))
@@ -164,11 +177,13 @@ def bench_one(camera: CameraModel, gt: dict[str, Any], frames: Iterator[Keyframe
     rng = np.random.default_rng(args.seed)
     engine = sfm.IncrementalSfm(camera, _config(args), np.random.default_rng(args.seed))
     times_s, cpu_s, poses, truth, images, results = [], [], {}, {}, [], []
+    steps = run_keyframe_steps(args.keyframes_from) \
+        if getattr(args, 'keyframes_from', None) else {}
     for kf_id, (stamp, img, T, fr) in enumerate(frames):
         vertices, true_ids = (_detected(img, camera, gt), None) if args.detector else \
             _vertices(fr, gt, rng, args.vertex_noise_px)
         t0, c0 = time.perf_counter(), time.process_time()
-        results.append(engine.add_keyframe(stamp, img, vertices))
+        results.append(engine.add_keyframe(stamp, img, vertices, steps.get(stamp)))
         times_s.append(time.perf_counter() - t0)
         cpu_s.append(time.process_time() - c0)
         poses[kf_id], truth[kf_id] = T, true_ids

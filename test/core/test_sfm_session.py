@@ -2,10 +2,12 @@
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 import itertools
+import json
 from pathlib import Path
 import sys
 
-from absscale_ros.core import sfm, sfm_session
+from absscale_ros.core import keyframes, sfm, sfm_session
+from absscale_ros.tools import bench_sfm
 import numpy as np
 import pytest
 
@@ -67,3 +69,22 @@ def test_rotation_only_warns_and_a_calibration_of_another_size_is_not_used() -> 
     other.add(0, seq.images_bgr[0], None, None, None, half, defer_batch=False)
     assert (other.engine.camera.width, other.engine.camera.height) == \
         (seq.camera.width, seq.camera.height) and other.engine.camera is not half
+
+
+def test_the_report_keeps_each_keyframes_tracked_step_for_the_replay(tmp_path) -> None:
+    seq = sfm_scenes.make_sequence('indoor_paper', 1, count=3)
+    ticks = _ticks()
+    session = sfm_session.SfmSession(sfm.SfmConfig(), 0, lambda: next(ticks))
+    rng = np.random.default_rng(5)
+    turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    steps = [None, keyframes.TrackedStep(10**18 + 1, turn, np.array([0.1, -0.02, 0.3])), None]
+    for k, image in enumerate(seq.images_bgr):
+        session.add(10**18 + k + 1, image, sfm_scenes.detections(seq, k, rng)[0], steps[k],
+                    None, seq.camera, defer_batch=False)
+    report = tmp_path / 'report.json'  # through JSON, as absscale run writes it
+    report.write_text(json.dumps({'nodes': {'sfm': session.report()}}))
+    got = bench_sfm.run_keyframe_steps(str(report))
+    assert list(got) == [10**18 + 2]  # the stamp survives JSON exactly (no float round trip)
+    step = got[10**18 + 2]
+    assert step.ref_stamp_ns == 10**18 + 1
+    assert np.array_equal(step.rotation, turn) and np.array_equal(step.centre, [0.1, -0.02, 0.3])
