@@ -203,13 +203,13 @@ class IncrementalSfm:
         self._forget_images()
         return self._result(status, msg)
 
-    def adjust_if_due(self) -> int | None:
+    def adjust_if_due(self, stop: Callable[[], bool] | None = None) -> int | None:
         """The batch adjustment ``defer_batch`` left out, if the current segment is due one:
-        the landmarks it culled (None: not due)."""
+        the landmarks it culled (None: not due). ``stop``: see ``SfmGraph.batch``."""
         seg = self.current
         if not seg.initialised or not seg.graph.batch_due(len(seg.map.keyframes)):
             return None
-        return seg.graph.batch(seg.map, self._progress)
+        return seg.graph.batch(seg.map, self._progress, stop)
 
     def _forget_descriptors(self) -> None:
         """

@@ -30,6 +30,9 @@ from absscale_ros.core import sfm_map
 
 FloatArray = npt.NDArray[np.float64]
 Progress = Callable[[str, float], None]
+# Live, a batch adjustment stops early for a waiting keyframe, but only after this many
+# Levenberg-Marquardt iterations: the first ones take most of the error out.
+MIN_BATCH_ITERATIONS = 3
 
 
 @dataclass(frozen=True)
@@ -354,10 +357,13 @@ class SegmentGraph:
         for n in np.flatnonzero(np.all(np.isfinite(pts), axis=1)).tolist():
             lms[n].point_world = pts[n]
 
-    def batch(self, m: sfm_map.SfmMap, progress: Progress | None = None) -> int:
+    def batch(self, m: sfm_map.SfmMap, progress: Progress | None = None,
+              stop: Callable[[], bool] | None = None) -> int:
         """
         Levenberg-Marquardt over the whole segment, cull outliers, restart iSAM2 from the result.
 
+        :param stop: asked between iterations (after ``MIN_BATCH_ITERATIONS``) whether to stop
+            early with the estimate so far (live: a keyframe waits); None: run to convergence.
         :returns: number of landmarks culled.
         """
         self._reset()
@@ -367,7 +373,8 @@ class SegmentGraph:
         opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
         if progress is not None:
             progress('batch start', graph.error(values))
-        result = opt.optimize()
+        result = opt.optimize() if stop is None else \
+            _optimize_until(opt, self._cfg.batch_iterations, stop)
         if progress is not None:
             progress('batch done', graph.error(result))
         self._write_back(m, result)
@@ -381,6 +388,22 @@ class SegmentGraph:
         except RuntimeError:  # keep the LM estimate; the next keyframe restarts iSAM2
             self._reset(self._free_from)
         return culled
+
+
+def _optimize_until(opt: gtsam.LevenbergMarquardtOptimizer, max_iterations: int,
+                    stop: Callable[[], bool]) -> gtsam.Values:
+    """``opt.optimize()`` that also ends once ``stop()`` says so: every iteration lowers the
+    error, so the estimate so far is a better one, not a broken one."""
+    before = opt.error()
+    while opt.iterations() < max_iterations:
+        opt.iterate()
+        after = opt.error()
+        if before - after <= 1e-5 * max(before, 1.0):  # converged (GTSAM's default tolerance)
+            break
+        before = after
+        if opt.iterations() >= MIN_BATCH_ITERATIONS and stop():
+            break
+    return opt.values()
 
 
 def _seen_by(m: sfm_map.SfmMap, kf_ids: list[int]) -> list[int]:

@@ -62,13 +62,14 @@ class LiveUpdates(Generic[T]):
     :param submit: runs the update loop on the (single) update worker.
     :param clock_ns: monotonic clock, ns (one clock for all processes: the latency timeline).
     :param process: adds a keyframe to the map and publishes it.
-    :param adjust: runs the batch adjustment the updates deferred, if due; whether it ran.
+    :param adjust: runs the batch adjustment the updates deferred, if due; whether it ran. It
+        is given a callable saying whether a keyframe now waits, to stop the adjustment early.
     :param skip: releases a keyframe replaced while waiting; returns its tracked step.
     :param on_error: logs an exception of ``process`` or ``adjust`` (a worker's would vanish).
     """
 
     def __init__(self, submit: Callable[[Callable[[], None]], Any], clock_ns: Callable[[], int],
-                 process: Callable[[T], None], adjust: Callable[[], bool],
+                 process: Callable[[T], None], adjust: Callable[[Callable[[], bool]], bool],
                  skip: Callable[[int, T], Step], on_error: Callable[[str], None]) -> None:
         self._submit, self._clock_ns = submit, clock_ns
         self._process, self._adjust, self._skip, self._on_error = process, adjust, skip, on_error
@@ -140,7 +141,7 @@ class LiveUpdates(Generic[T]):
     def _adjust_if_due(self) -> bool:
         t0 = self._clock_ns()
         try:
-            ran = self._adjust()
+            ran = self._adjust(lambda: self._waiting is not None)
         except Exception as err:  # noqa: BLE001 (a worker's exception would vanish)
             self._on_error(f'batch adjustment failed: {err!r}')
             return False

@@ -76,10 +76,11 @@ class SfmSession:
             self.count(self.last.status)
             return self.last
 
-    def adjust_if_due(self) -> bool:
-        """Run the batch adjustment that deferred updates left out, if due; whether it ran."""
+    def adjust_if_due(self, stop: Callable[[], bool] | None = None) -> bool:
+        """Run the batch adjustment that deferred updates left out, if due; whether it ran.
+        ``stop``: asked between its iterations whether to end early (a keyframe waits)."""
         with self._lock:
-            return self.engine is not None and self.engine.adjust_if_due() is not None
+            return self.engine is not None and self.engine.adjust_if_due(stop) is not None
 
     def report(self, full_rms: bool = True, skipped: int = 0,
                live: dict[str, Any] | None = None) -> dict[str, Any]:

@@ -95,3 +95,26 @@ def test_prior_leaves_the_isam2_estimate_where_the_views_put_it(orbit) -> None:
     p_old = np.array([old.landmarks[i].point_world for i in sorted(old.landmarks)])
     p_new = np.array([new.landmarks[i].point_world for i in sorted(new.landmarks)])
     assert np.median(np.linalg.norm(p_new - p_old, axis=1)) < 1e-3 * spread
+
+
+def test_a_batch_asked_to_stop_ends_early_with_a_lower_error(orbit) -> None:
+    """Live, a waiting keyframe stops the batch adjustment after a few iterations."""
+    m = copy.deepcopy(orbit.current.map)
+    rng = np.random.default_rng(3)
+    for lm in m.landmarks.values():  # points off their fit, so the adjustment has work
+        lm.point_world = lm.point_world * rng.uniform(0.9, 1.1)
+    g = sfm_graph.SegmentGraph(orbit.K, orbit.cfg.graph_cfg)
+    g._reset()
+    graph, values = g._new_terms(m)
+    opt = gtsam.LevenbergMarquardtOptimizer(graph, values, gtsam.LevenbergMarquardtParams())
+    asked = []
+    early = sfm_graph._optimize_until(opt, 25, lambda: asked.append(opt.iterations()) or True)
+    assert asked == [sfm_graph.MIN_BATCH_ITERATIONS] == [opt.iterations()]
+    full = gtsam.LevenbergMarquardtOptimizer(graph, values,
+                                             gtsam.LevenbergMarquardtParams()).optimize()
+    assert graph.error(full) < graph.error(early) < graph.error(values)
+    # Never asked to stop, it converges as optimize() does.
+    never = sfm_graph._optimize_until(
+        gtsam.LevenbergMarquardtOptimizer(graph, values, gtsam.LevenbergMarquardtParams()),
+        25, lambda: False)
+    assert graph.error(never) == pytest.approx(graph.error(full), rel=1e-3)

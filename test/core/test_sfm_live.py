@@ -33,7 +33,7 @@ def _step(T: list[np.ndarray], k: int) -> keyframes.TrackedStep | None:
 class Harness:
     """A LiveUpdates on a real single worker whose first update holds until released."""
 
-    def __init__(self, adjust=lambda: False) -> None:
+    def __init__(self, adjust=lambda stop: False) -> None:
         self.release, self.processed, self.skipped, self.errors = threading.Event(), [], [], []
         ticks = itertools.count(1000)
         self.pool = ThreadPoolExecutor(1)
@@ -95,14 +95,14 @@ def test_a_skipped_keyframe_without_a_step_leaves_the_next_unchecked() -> None:
 
 def test_the_deferred_adjustment_runs_once_idle_and_failures_are_reported() -> None:
     due = [True, False]
-    h = Harness(adjust=lambda: due.pop(0) if due else False)
+    h = Harness(adjust=lambda stop: due.pop(0) if due else False)
     h.release.set()
     h.live.offer(STAMPS[0], (STAMPS[0], 'boom'))
     assert h.idle()
     assert h.errors == ["keyframe update failed: RuntimeError('boom')"]
     assert h.live.timeline_ns == [] and len(h.live.batch_ms) == 1 and due == []
 
-    def broken() -> bool:
+    def broken(stop) -> bool:
         raise ValueError('singular')
 
     h = Harness(adjust=broken)
@@ -145,3 +145,22 @@ def test_features_are_detected_ahead_and_unpaired_ones_cancelled() -> None:
         gate.set()
         assert future.result(timeout=10.0) == images[3].sum() == 6 * 8 * 3 * 3
     assert prefetch.take(2) == (None, None)
+
+
+def test_the_adjustment_is_told_when_a_keyframe_starts_waiting() -> None:
+    told = []
+
+    def adjust(stop) -> bool:
+        if told:
+            return False
+        told.append(stop())  # nothing waits yet
+        h.live.offer(STAMPS[1], (STAMPS[1], None))  # a keyframe arrives mid-adjustment
+        told.append(stop())
+        return True
+
+    h = Harness(adjust=adjust)
+    h.release.set()
+    h.live.offer(STAMPS[0], (STAMPS[0], None))
+    assert h.idle() and h.errors == []
+    assert told == [False, True]  # so a batch can end early for it
+    assert [s for s, _ in h.processed] == [STAMPS[0], STAMPS[1]]
