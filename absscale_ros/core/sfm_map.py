@@ -166,8 +166,9 @@ class SfmMap:
 
     def unobserve(self, lm_id: int, kf_id: int) -> None:
         self.landmarks[lm_id].obs_px.pop(kf_id, None)
-        lof = self.keyframes[kf_id].landmark_of
-        lof[lof == lm_id] = -1
+        kf = self.keyframes[kf_id]
+        for lof in (kf.landmark_of, *(() if kf.vertices is None else (kf.vertices.landmark_of,))):
+            lof[lof == lm_id] = -1  # a keypoint or target vertex no longer tied to it
 
     def remove_landmark(self, lm_id: int) -> None:
         for kf_id in list(self.landmarks[lm_id].obs_px):

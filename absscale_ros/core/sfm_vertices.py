@@ -76,9 +76,6 @@ def link(m: sfm_map.SfmMap, K: FloatArray, new: sfm_map.MapKeyframe,
         if a is None:
             continue
         F = vm.fundamental(K, old.T_world_cam, new.T_world_cam)
-        for kv, kf in ((a, old), (b, new)):  # landmarks or observations a batch culled
-            kv.landmark_of[[int(x) not in m.landmarks or kf.kf_id not in m.landmarks[
-                int(x)].obs_px for x in kv.landmark_of]] = -1
         for i, j in _pairs(a, b, F, cfg):
             if a.landmark_of[i] >= 0 and not _projects_to(m, K, int(a.landmark_of[i]), new, j):
                 continue  # a neighbouring corner matched: not this landmark
