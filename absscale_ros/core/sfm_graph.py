@@ -87,8 +87,9 @@ class SegmentGraph:
         huber = gtsam.noiseModel.mEstimator.Huber.Create(cfg.huber_k)
         self._noise = gtsam.noiseModel.Robust.Create(
             huber, gtsam.noiseModel.Isotropic.Sigma(2, cfg.sigma_px))
+        self._vertex_sigma = cfg.sigma_px / np.sqrt(cfg.vertex_weight)
         self._vertex_noise = gtsam.noiseModel.Robust.Create(
-            huber, gtsam.noiseModel.Isotropic.Sigma(2, cfg.sigma_px / np.sqrt(cfg.vertex_weight)))
+            huber, gtsam.noiseModel.Isotropic.Sigma(2, self._vertex_sigma))
         self._last_batch_size = 0
         self._reset()
 
@@ -101,6 +102,7 @@ class SegmentGraph:
         self._factors: set[tuple[int, int]] = set()  # (kf_id, lm_id) already in iSAM2
         self._n_in: dict[int, int] = {}  # landmark -> its views looked at (see _add_landmark)
         self._keys: set[int] = set()
+        self._pose_keys: list[int] = []  # the pose keys among them (iSAM2's ordering groups)
         self._free_from = free_from
         self._held_cams: dict[int, gtsam.PinholeCameraCal3_S2] = {}
         self._gauge_done = free_from >= 0  # held keyframes fix the gauge
@@ -119,7 +121,7 @@ class SegmentGraph:
     @property
     def poses_in(self) -> int:
         """Keyframe poses iSAM2 holds since its last restart (held ones are not variables)."""
-        return sum(1 for k in self._keys if k & ~(2**56 - 1) == _X)
+        return len(self._pose_keys)
 
     @property
     def held_before(self) -> int:
@@ -162,8 +164,8 @@ class SegmentGraph:
         landmarks, K = m.landmarks, self._cal.K()
         pts = np.array([landmarks[i].point_world for i in ids.tolist()])
         uv = np.array([landmarks[i].obs_px[k] for i, k in views])
-        sigma = np.array([self._cfg.sigma_px / np.sqrt(self._cfg.vertex_weight)
-                          if landmarks[i].label is not None else self._cfg.sigma_px
+        sigma = np.array([self._vertex_sigma if landmarks[i].label is not None
+                          else self._cfg.sigma_px
                           for i in ids.tolist()])[inv]
         kf_u, kf_inv = np.unique(kfs, return_inverse=True)
         T = np.array([m.keyframes[k].T_world_cam for k in kf_u.tolist()])[kf_inv]
@@ -199,6 +201,7 @@ class SegmentGraph:
 
     def _insert_pose(self, m: sfm_map.SfmMap, kf_id: int, values: gtsam.Values) -> None:
         self._keys.add(pose_key(kf_id))
+        self._pose_keys.append(pose_key(kf_id))
         values.insert(pose_key(kf_id), gtsam.Pose3(m.keyframes[kf_id].T_world_cam))
 
     def _gauge(self, m: sfm_map.SfmMap, graph: gtsam.NonlinearFactorGraph) -> None:
@@ -284,9 +287,8 @@ class SegmentGraph:
         with this and ``held_prior``). Landmarks first is bundle adjustment's Schur order.
         """
         groups = gtsam.KeyGroupMap()
-        for k in self._keys:
-            if k & ~(2**56 - 1) == _X:
-                groups.insert2(k, 1)
+        for k in self._pose_keys:
+            groups.insert2(k, 1)
         return groups
 
     def _write_back(self, m: sfm_map.SfmMap, est: gtsam.Values) -> None:
