@@ -5,8 +5,9 @@ updates that never queue.
 Live, a keyframe that arrives while another still waits for the map replaces it: the waiting
 one is skipped, and its tracked step is kept so the next keyframe the map takes has a step
 from the last keyframe the map saw (the skipped steps chained). The periodic batch
-adjustment runs once no keyframe waits. Threads and clocks come in as callables (an
-executor's ``submit``, ``time.monotonic_ns``), so tests drive this deterministically.
+adjustment runs once no keyframe waits, and ends early for one that comes meanwhile. Threads
+and clocks come in as callables (an executor's ``submit``, ``time.monotonic_ns``), so tests
+drive this deterministically.
 """
 from concurrent.futures import Future
 import threading
@@ -113,7 +114,7 @@ class LiveUpdates(Generic[T]):
     def _loop(self) -> None:
         """
         Add the waiting keyframe to the map until none waits; then the batch adjustment its
-        update left out, if due (seconds, which no keyframe waits behind unless it comes
+        update left out, if due (it ends after a few iterations for a keyframe that comes
         meanwhile), and look again.
         """
         while True:
