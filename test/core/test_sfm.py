@@ -9,6 +9,7 @@ import sys
 import cv2
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from absscale_ros.core import aliasing, align, errors, keyframes, sfm, sfm_graph, sfm_vertices
 from absscale_ros.core import twoview
@@ -279,3 +280,26 @@ def test_pose_against_the_tracked_step_is_refused(outdoor_orbit) -> None:
     assert last.status == 'rejected' and 'tracked motion' in last.message
     T = seq.T_world_cams
     assert aliasing.step_angle_deg(T[8], T[9], (np.linalg.inv(T[8]) @ T[9])[:3, 3]) < 1e-6
+
+
+def test_pose_similarity_fixes_the_roll_that_a_straight_path_leaves_open() -> None:
+    # Cameras on a nearly straight line (1 mm off it) looking sideways: their centres, noisy by
+    # 2 mm, fix the rotation about the line poorly; their orientations fix it well.
+    rng = np.random.default_rng(4)
+    R_true = Rotation.from_rotvec([0.3, -0.2, 0.9]).as_matrix()
+    T_src = np.tile(np.eye(4), (20, 1, 1))
+    T_src[:, :3, 3] = np.c_[np.linspace(0.0, 6.0, 20), rng.normal(0.0, 1e-3, (20, 2))]
+    T_src[:, :3, :3] = Rotation.from_rotvec(rng.normal(0.0, 0.05, (20, 3))).as_matrix()
+    T_dst = T_src.copy()
+    T_dst[:, :3, :3] = R_true @ T_src[:, :3, :3]
+    T_dst[:, :3, 3] = 2.0 * T_src[:, :3, 3] @ R_true.T + [1.0, 2.0, 3.0]
+    s, R, t = align.pose_similarity(T_src, T_dst)  # exact poses: exact similarity
+    assert s == pytest.approx(2.0, rel=1e-9)
+    assert np.allclose(R, R_true, atol=1e-9) and np.allclose(t, [1.0, 2.0, 3.0], atol=1e-9)
+    T_dst[:, :3, 3] += rng.normal(0.0, 2e-3, (20, 3))
+    roll_err = [np.degrees(Rotation.from_matrix(fit(T_src, T_dst)[1] @ R_true.T).magnitude())
+                for fit in (lambda a, b: align.umeyama(a[:, :3, 3], b[:, :3, 3]),
+                            align.pose_similarity)]
+    assert roll_err[1] < 1e-6 < 0.1 < roll_err[0]
+    with pytest.raises(errors.DegenerateGeometryError):
+        align.pose_similarity(T_src[:2], T_dst[:2])
