@@ -15,7 +15,7 @@ import gtsam
 import numpy as np
 import pytest
 
-from absscale_ros.core import sfm, sfm_graph
+from absscale_ros.core import align, sfm, sfm_graph
 
 sys.path.insert(0, str(Path(__file__).parent))
 import sfm_scenes  # noqa: E402
@@ -97,24 +97,57 @@ def test_prior_leaves_the_isam2_estimate_where_the_views_put_it(orbit) -> None:
     assert np.median(np.linalg.norm(p_new - p_old, axis=1)) < 1e-3 * spread
 
 
-def test_a_batch_asked_to_stop_ends_early_with_a_lower_error(orbit) -> None:
-    """Live, a waiting keyframe stops the batch adjustment after a few iterations."""
+def test_a_batch_paused_for_keyframes_leaves_the_map_alone_and_ends_as_the_batch(orbit) -> None:
+    """Live, the batch pauses whenever a keyframe waits (after building its problem, after
+    each iteration); the map is untouched until it converged, and the result is the batch's."""
     m = copy.deepcopy(orbit.current.map)
     rng = np.random.default_rng(3)
     for lm in m.landmarks.values():  # points off their fit, so the adjustment has work
         lm.point_world = lm.point_world * rng.uniform(0.9, 1.1)
+    whole = copy.deepcopy(m)
+    sfm_graph.SegmentGraph(orbit.K, orbit.cfg.graph_cfg).batch(whole)
     g = sfm_graph.SegmentGraph(orbit.K, orbit.cfg.graph_cfg)
-    g._reset()
-    graph, values = g._new_terms(m)
-    opt = gtsam.LevenbergMarquardtOptimizer(graph, values, gtsam.LevenbergMarquardtParams())
-    asked = []
-    early = sfm_graph._optimize_until(opt, 25, lambda: asked.append(opt.iterations()) or True)
-    assert asked == [sfm_graph.MIN_BATCH_ITERATIONS] == [opt.iterations()]
-    full = gtsam.LevenbergMarquardtOptimizer(graph, values,
-                                             gtsam.LevenbergMarquardtParams()).optimize()
-    assert graph.error(full) < graph.error(early) < graph.error(values)
-    # Never asked to stop, it converges as optimize() does.
-    never = sfm_graph._optimize_until(
-        gtsam.LevenbergMarquardtOptimizer(graph, values, gtsam.LevenbergMarquardtParams()),
-        25, lambda: False)
-    assert graph.error(never) == pytest.approx(graph.error(full), rel=1e-3)
+    before = {i: lm.point_world.copy() for i, lm in m.landmarks.items()}
+    calls = 0
+    while g._paused is not None or calls == 0:
+        asked = []  # one step a call: nothing waits when first asked, a keyframe after
+        assert g.batch(m, stop=lambda: asked.append(1) or len(asked) > 1) == 0 or \
+            g._paused is None
+        calls += 1
+        if g._paused is not None:
+            assert all(np.array_equal(lm.point_world, before[i]) for i, lm in m.landmarks.items())
+    assert calls >= 3  # the problem, iterations, each in its own call
+    ids, T = m.poses()
+    whole_ids, whole_T = whole.poses()
+    assert ids == whole_ids and np.allclose(T, whole_T, atol=1e-6)
+    assert set(m.landmarks) == set(whole.landmarks)
+
+
+def test_keyframes_placed_during_a_paused_batch_move_with_it() -> None:
+    """A keyframe iSAM2 placed while the batch was paused is carried along with the batch's
+    move of the newest keyframe it adjusted, and the map stays on the truth."""
+    seq = sfm_scenes.make_sequence('indoor_paper', 3, count=9, arc_deg=40.0)
+    cfg = replace(sfm.SfmConfig(), graph_cfg=replace(sfm_graph.GraphConfig(), window=3,
+                                                     batch_every=6))
+    engine = sfm.IncrementalSfm(seq.camera, cfg, np.random.default_rng(7))
+    waiting = [True]
+    for k, img in enumerate(seq.images_bgr):
+        engine.add_keyframe(k, img, defer_batch=True)
+        if engine.adjust_if_due(lambda: waiting[0]) is not None:
+            break  # paused after building its problem
+    g = engine.current.graph
+    assert g._paused is not None
+    for img in seq.images_bgr[k + 1:]:  # placed by iSAM2 meanwhile
+        assert engine.add_keyframe(k + 1, img, defer_batch=True).status == 'registered'
+        k += 1
+    m = engine.current.map
+    newest = g._paused.newest
+    assert max(m.keyframes) > newest
+    while g._paused is not None:  # nothing waits any more: it runs to the end
+        engine.adjust_if_due(lambda: False)
+    ids, T = m.poses()
+    gt = seq.T_world_cams[[m.keyframes[i].stamp_ns for i in ids], :3, 3]
+    s, R, t = align.umeyama(T[:, :3, 3], gt)
+    length_m = float(np.sum(np.linalg.norm(np.diff(gt, axis=0), axis=1)))
+    assert align.rmse(align.apply(s, R, t, T[:, :3, 3]), gt) <= 0.003 * length_m
+    assert not g.batch_due(len(ids))
