@@ -84,17 +84,22 @@ def dense_enabled(sections: dict[str, dict[str, Any]]) -> bool:
     return bool(params.node_params(sections, 'dense').get('enabled', False))
 
 
+def available_modules(sections: dict[str, dict[str, Any]] | None = None
+                      ) -> list[tuple[str, str]]:
+    """(node name, module) of the pipeline nodes whose modules exist in this checkout (the
+    dense node only when the config's ``sections`` enable it), in data-flow order; nothing is
+    imported (a --processes runner would spend seconds importing what its nodes run)."""
+    return [(name, module) for name, module, _ in PIPELINE
+            if (name != 'dense' or dense_enabled(sections or {}))
+            and importlib.util.find_spec(module) is not None]
+
+
 def available_nodes(sections: dict[str, dict[str, Any]] | None = None
                     ) -> list[tuple[str, type]]:
-    """The pipeline nodes whose modules exist in this checkout (the dense node only when the
-    config's ``sections`` enable it), in data-flow order."""
-    found = []
-    for name, module, cls in PIPELINE:
-        if name == 'dense' and not dense_enabled(sections or {}):
-            continue
-        if importlib.util.find_spec(module) is not None:
-            found.append((name, getattr(importlib.import_module(module), cls)))
-    return found
+    """The pipeline nodes of ``available_modules``, as their node classes."""
+    classes = {name: cls for name, _, cls in PIPELINE}
+    return [(name, getattr(importlib.import_module(module), classes[name]))
+            for name, module in available_modules(sections)]
 
 
 def _check_step_window(sections: dict[str, dict[str, Any]]) -> None:
@@ -235,10 +240,10 @@ class _NodeProcesses:
         self._dir = tempfile.TemporaryDirectory(prefix='absscale_nodes_')
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))  # with run_graph's DDS profile
         sections = params.load_yaml(config_path)
-        found = dict(available_nodes(sections))
+        found = dict(available_modules(sections))
         self.names = list(found)
         self._procs: dict[str, subprocess.Popen] = {}
-        for name, cls in found.items():
+        for name, module in found.items():
             args = ['--ros-args', '--params-file', str(config_path)]
             if name == 'scale' and dense_enabled(sections):
                 args += ['-p', f'cloud_topic:={SPARSE_METRIC_TOPIC}']
@@ -246,7 +251,7 @@ class _NodeProcesses:
                 args += ['-p', 'use_vertices:=false']
             if live:
                 args += ['-p', 'qos:=sensor_data']
-            code = f'from {cls.__module__} import main; main()'
+            code = f'from {module} import main; main()'
             self._procs[name] = subprocess.Popen(
                 [sys.executable, '-c', code, *args],
                 env=dict(env, ABSSCALE_REPORT=str(Path(self._dir.name) / f'{name}.json')),

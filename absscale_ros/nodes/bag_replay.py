@@ -18,6 +18,13 @@ from std_msgs.msg import Header
 # What rclpy reports for an endpoint whose node's name has not been discovered yet.
 UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'
 IMAGE_TYPES = ('sensor_msgs/msg/Image', 'sensor_msgs/msg/CompressedImage')
+# Rate and fast modes keep time with a 1 ms tick. Step mode is driven by acknowledgements: its
+# tick only starts the replay and expires steps, and at 1 kHz it had cost a --processes
+# runner more CPU than reading and publishing the bag.
+TICK_S = {'rate': 0.001, 'fast': 0.001, 'step': 0.02}
+# Before the replay starts, the graph is queried this often: each query walks every endpoint
+# of every topic (~0.3 ms), and node processes are still starting on the same cores.
+READY_PERIOD_S = 0.05
 
 
 class BagReplayNode(Node):
@@ -51,8 +58,9 @@ class BagReplayNode(Node):
         self._known_since: float | None = None
         self._cursor: bagio.ReplayCursor | None = None
         self._last_progress = self._created = time.monotonic()
+        self._ready_checked = -READY_PERIOD_S
         self._create_ack_sub()
-        self._timer = self.create_timer(0.001, self._tick)
+        self._timer = self.create_timer(TICK_S[self._p['mode']], self._tick)
 
     def _class(self, topic: str, msgtype: str) -> Any:
         try:
@@ -126,6 +134,10 @@ class BagReplayNode(Node):
         if self.drained:
             return
         if self._cursor is None:
+            now = time.monotonic()
+            if now - self._ready_checked < READY_PERIOD_S:
+                return
+            self._ready_checked = now
             if not self._ready():
                 return
             self._start()

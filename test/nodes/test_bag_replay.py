@@ -57,6 +57,25 @@ def test_step_mode_waits_for_the_consumer(context, tmp_path: Path) -> None:
     assert spin_until(executor, lambda: replay.timeouts >= 1, timeout_s=5.0)
 
 
+def test_step_replay_queries_the_graph_sparingly_while_it_waits(
+        context, tmp_path: Path) -> None:
+    """Waiting for a node that never comes, the graph is queried every 50 ms (not on every
+    tick); the replay still starts after ``startup_timeout_s`` and delivers every frame."""
+    bag = tmp_path / 'cam.mcap'
+    sent = write_camera_bag(bag, frames=5)
+    sink, replay, executor = _graph(context, bag, mode='step', topics=IMAGE_TOPIC,
+                                    expect_nodes='step_sink,never_started',
+                                    startup_timeout_s=1.0)
+    checks = []
+    ready = replay._ready
+    replay._ready = lambda: checks.append(time.monotonic()) or ready()
+    assert spin_until(executor, lambda: replay.finished and len(sink.received) == 5,
+                      timeout_s=20.0)
+    assert sink.received == sent and replay.timeouts == 0
+    assert checks[-1] - checks[0] >= 0.9  # it waited for the missing node
+    assert len(checks) <= 1.0 / 0.05 + 5  # not once a millisecond
+
+
 def test_topic_filter_remap_and_offset(context, tmp_path: Path) -> None:
     bag = tmp_path / 'cam.mcap'
     sent = write_camera_bag(bag, frames=30)
