@@ -149,6 +149,7 @@ def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
     """
     config_path = params.find_config(config)
     sections = params.load_yaml(config_path)
+    common.keep_freed_memory()
     if options.mode == 'step' and not options.live:
         _check_step_window(sections)
     lease = DomainLease() if options.domain_id is None else None

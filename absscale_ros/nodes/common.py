@@ -1,4 +1,5 @@
 """Pieces every node shares: QoS profiles, the step-mode acknowledgement, message classes."""
+import ctypes
 import importlib
 from typing import Any, Iterable
 
@@ -19,6 +20,10 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 SENSOR = qos_profile_sensor_data
 LIVE = 'sensor_data'  # the ``qos`` parameter's value of a live run (``absscale run --live``)
+# glibc mallopt parameters (malloc.h) and the values keep_freed_memory sets.
+M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3
+MMAP_THRESHOLD_BYTES = 32 << 20  # glibc's largest: every frame-sized buffer on the heap
+TRIM_THRESHOLD_BYTES = 128 << 20  # free memory kept at the heap's top, at most
 
 
 def live_input(depth: int) -> QoSProfile:
@@ -87,6 +92,24 @@ def single_threaded_executor(context: Any = None) -> Any:
     return EventsExecutor(context=context)
 
 
+def keep_freed_memory() -> None:
+    """
+    Let glibc reuse freed frame-sized buffers instead of returning them to the kernel.
+
+    Every 1280x720 frame (2.7 MB) and each OpenCV or numpy image made from it is a large
+    allocation: by default glibc maps it fresh (or trims the heap after it), and the kernel
+    zeroes its pages again on first touch. Kept in the heap, they are reused as they are; the
+    outdoor sample in one process took 10 % less CPU (sys time 3.0 -> 0.7 s). No effect where
+    the C library is not glibc.
+    """
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):
+        return
+    mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)
+    mallopt(M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES)
+
+
 def run_node(node_cls: type, args: list[str] | None = None, threads: int = 1) -> None:
     """
     The console-script ``main`` of every node (Jazzy style, see STYLE.md).
@@ -100,6 +123,7 @@ def run_node(node_cls: type, args: list[str] | None = None, threads: int = 1) ->
     from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 
     from absscale_ros.core.errors import AbsScaleError
+    keep_freed_memory()
     rclpy.init(args=args)
     try:
         node = node_cls()
