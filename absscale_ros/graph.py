@@ -172,7 +172,8 @@ def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
         replay_params = params.node_params(sections, 'bag_replay')
         names = children.names if children is not None else list(nodes)
         replay_params.update(bag=str(bag), expect_nodes=','.join(names), mode=options.mode,
-                             rate=options.rate, observer=monitor.get_name())
+                             rate=options.rate, observer=monitor.get_name(),
+                             observer_images=bool(options.record))
         if children is not None:  # discovery across processes takes longer than in one
             replay_params['startup_timeout_s'] = max(30.0, replay_params.get(
                 'startup_timeout_s', 5.0))

@@ -36,7 +36,7 @@ class BagReplayNode(Node):
             ('start_offset_s', 0.0), ('loop', False), ('step_topics', ''),
             ('step_timeout_s', 10.0), ('expect_nodes', ''), ('qos', 'reliable'),
             ('progress_period_s', 5.0), ('startup_timeout_s', 5.0), ('settle_s', 0.0),
-            ('observer', ''), ('step_window', 1)])
+            ('observer', ''), ('observer_images', True), ('step_window', 1)])
         self._p = {x.name: x.value for x in p}
         if self._p['mode'] not in ('rate', 'fast', 'step'):
             raise ValueError(f"mode must be rate, fast or step, not {self._p['mode']!r}")
@@ -96,13 +96,22 @@ class BagReplayNode(Node):
         return True
 
     def _observed(self) -> bool:
-        """With ``observer`` set (absscale run's graph_monitor), it must hear every graph topic."""
+        """
+        With ``observer`` set (absscale run's graph_monitor), it must hear every graph topic:
+        without ``observer_images`` the acknowledgements instead of the image topics (a
+        monitor that does not record counts images from them).
+        """
         observer = self._p['observer']
         if not observer:
             return True
-        for topic, _ in self.get_topic_names_and_types():
-            if not topic.startswith('/absscale/') or topic == common.ACK_TOPIC or 'debug' in topic:
+        images = self._p['observer_images']
+        for topic, types in self.get_topic_names_and_types():
+            if not topic.startswith('/absscale/') or 'debug' in topic:
                 continue
+            if images and topic == common.ACK_TOPIC:
+                continue  # it hears the images themselves
+            if not images and IMAGE_TYPES[0] in types:
+                continue  # it counts them from the acknowledgements
             if observer not in {i.node_name for i in self.get_subscriptions_info_by_topic(topic)}:
                 return False
         return True
