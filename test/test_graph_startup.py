@@ -49,3 +49,12 @@ def test_freed_frames_are_reused_without_the_kernel_zeroing_them_again() -> None
     # kernel zeroes the pages again at the next one.
     assert fresh >= 20 * pages
     assert kept < pages  # the same heap memory serves every step
+
+
+def test_the_frame_nodes_start_without_scipy() -> None:
+    """scipy.spatial takes 0.36 s of CPU to import, in every node process that imports it."""
+    out = _run('import json, sys\n'
+               'import absscale_ros.nodes.frame_ingest, absscale_ros.nodes.vertex_detector\n'
+               'import absscale_ros.nodes.keyframe_selector\n'
+               'print(json.dumps({"scipy": "scipy.spatial" in sys.modules}))')
+    assert out == {'scipy': False}
