@@ -433,8 +433,16 @@ class SegmentGraph:
         self._reset(ids[-self._cfg.window] if len(ids) > self._cfg.window else -1)
         try:
             self.update(m, fallback=False)
-        except RuntimeError:  # keep the LM estimate; the next keyframe restarts iSAM2
-            self._reset(self._free_from)
+        except RuntimeError:
+            # Ill-posed with the older keyframes held (60 s bag, live: the held views tied the
+            # free ones too weakly), so every keyframe free, the gauge fixed by priors; if that
+            # fails too, keep the LM estimate: the next keyframe restarts iSAM2 (or falls back
+            # to a batch in its update).
+            self._reset()
+            try:
+                self.update(m, fallback=False)
+            except RuntimeError:
+                self._reset(self._free_from)
         return culled
 
     def _batch_in_steps(self, m: sfm_map.SfmMap, progress: Progress | None,
@@ -505,9 +513,8 @@ class _PausedBatch:
         for kf_id, kf in m.keyframes.items():
             if kf_id > self.newest:
                 est.insert(pose_key(kf_id), gtsam.Pose3(C @ kf.T_world_cam))
-        for lm_id, lm in m.landmarks.items():
-            if not est.exists(point_key(lm_id)) and \
-                    all(k > self.newest for k in lm.obs_px):
+        for lm_id, lm in m.landmarks.items():  # new (the batch took all of 2 views or more)
+            if not est.exists(point_key(lm_id)):
                 est.insert(point_key(lm_id), gtsam.Point3(C[:3, :3] @ lm.point_world + C[:3, 3]))
         return est
 

@@ -151,3 +151,21 @@ def test_keyframes_placed_during_a_paused_batch_move_with_it() -> None:
     length_m = float(np.sum(np.linalg.norm(np.diff(gt, axis=0), axis=1)))
     assert align.rmse(align.apply(s, R, t, T[:, :3, 3]), gt) <= 0.003 * length_m
     assert not g.batch_due(len(ids))
+
+
+def test_an_ill_posed_restart_after_a_batch_frees_every_keyframe(orbit, monkeypatch) -> None:
+    """If iSAM2 cannot restart with the older keyframes held (too weakly tied to the free
+    ones), it restarts with all free (the gauge fixed by priors) rather than staying empty,
+    which made the next keyframe's update fall back to a whole batch (0.5 s CPU, live)."""
+    m = copy.deepcopy(orbit.current.map)
+    g = sfm_graph.SegmentGraph(orbit.K, orbit.cfg.graph_cfg)
+    update = sfm_graph.SegmentGraph.update
+
+    def held_fails(self, m, fallback=True):
+        if self.held_before >= 0:
+            raise RuntimeError('Indeterminant linear system')
+        return update(self, m, fallback)
+
+    monkeypatch.setattr(sfm_graph.SegmentGraph, 'update', held_fails)
+    g.batch(m)
+    assert g.held_before == -1 and g.poses_in == len(m.keyframes)
