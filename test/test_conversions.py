@@ -84,6 +84,23 @@ def test_bgr8_image_msg_has_unpadded_rows_and_header() -> None:
     assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (2, 5)
 
 
+def test_a_frame_is_copied_once_into_its_message() -> None:
+    """A 1280x720 frame: one copy into the message (the setter of a message made without
+    check_fields copies the data array again), and the same bytes on the wire."""
+    import tracemalloc
+    from rclpy.serialization import serialize_message
+    image = random_image('bgr8', 720, 1280)
+    tracemalloc.start()
+    msg = conversions.array_to_image_msg(image, 'bgr8', stamp_ns=5, frame_id='cam')
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert image.nbytes <= peak < 1.5 * image.nbytes
+    plain = Image(height=720, width=1280, encoding='bgr8', step=3840)
+    plain.header = msg.header
+    plain.data = image.tobytes()
+    assert serialize_message(msg) == serialize_message(plain)
+
+
 def test_mono16_is_written_little_endian() -> None:
     msg = conversions.array_to_image_msg(np.array([[0x0102, 0xA0B0]], np.uint16), 'mono16')
     assert bytes(msg.data) == b'\x02\x01\xb0\xa0'
