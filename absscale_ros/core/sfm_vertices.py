@@ -9,7 +9,9 @@ A match is only a candidate: the cube's corners, 30 px apart from 15 m, can pass
 and colour test for a neighbour (the live 60 s bag, which skips keyframes: corner 1 took corner
 5's observations, the landmark settled 0.67 m off with 2 px residuals and bent the map). So a
 landmark extends to a new keyframe only where it projects nearer the matched vertex than to any
-other, and two landmarks seen in one keyframe are never merged.
+other, and two landmarks seen in one keyframe are never merged. A corner back in view after
+more keyframes than the match window is tied to the landmark it already has where that projects
+onto it unambiguously in both views, instead of starting a second, few-view landmark.
 """
 from dataclasses import dataclass
 
@@ -87,6 +89,12 @@ def link(m: sfm_map.SfmMap, K: FloatArray, new: sfm_map.MapKeyframe,
                 b.landmark_of[j] = a.landmark_of[i]
                 m.observe(int(a.landmark_of[i]), new.kf_id, b.vertices.points_px[j])
                 continue
+            lm_id = _coinciding(m, K, old, i, new, j)
+            if lm_id >= 0:  # a corner seen again after a gap: the landmark it already has
+                for kf, v, k in ((old, a, i), (new, b, j)):
+                    v.landmark_of[k] = lm_id
+                    m.observe(lm_id, kf.kf_id, v.vertices.points_px[k])
+                continue
             pts, ok = twoview.triangulate(K, old.T_world_cam, new.T_world_cam,
                                           a.vertices.points_px[i:i + 1],
                                           b.vertices.points_px[j:j + 1], tv_cfg)
@@ -113,6 +121,36 @@ def _projects_to(m: sfm_map.SfmMap, K: FloatArray, lm_id: int, kf: sfm_map.MapKe
     pts = kf.vertices.vertices.points_px
     gaps = np.linalg.norm(np.delete(pts, j, axis=0) - pts[j], axis=1)
     return bool(np.linalg.norm(uv - pts[j]) < (gaps.min() / 3.0 if len(gaps) else np.inf))
+
+
+def _coinciding(m: sfm_map.SfmMap, K: FloatArray, a: sfm_map.MapKeyframe, i: int,
+                b: sfm_map.MapKeyframe, j: int) -> int:
+    """
+    The vertex landmark of the same object that vertex ``i`` of ``a`` and ``j`` of ``b`` see
+    again (-1: none): in both keyframes the landmark of that object projecting nearest the
+    vertex, by less than half the way to the next one, and ``_projects_to`` it; not observed
+    in either yet. A corner out of view for longer than the match window would otherwise
+    become a second landmark, triangulated from a few recent views only.
+    """
+    obj = int(a.vertices.vertices.object_ids[i])
+    ids = [k for k, lm in m.landmarks.items() if lm.label is not None and lm.label[0] == obj]
+    found = -1
+    for kf, n in ((a, i), (b, j)):
+        T = kf.T_world_cam
+        p_cam = (np.array([m.landmarks[k].point_world for k in ids]).reshape(-1, 3)
+                 - T[:3, 3]) @ T[:3, :3]
+        front = p_cam[:, 2] > 0.0
+        if not front.any():
+            return -1
+        uv = (p_cam[front] @ K.T)[:, :2] / p_cam[front, 2:3]
+        d = np.linalg.norm(uv - kf.vertices.vertices.points_px[n], axis=1)
+        order = np.argsort(d)
+        best = int(np.asarray(ids)[front][order[0]])
+        if (len(d) > 1 and d[order[0]] >= 0.5 * d[order[1]]) or found not in (-1, best) or \
+                not _projects_to(m, K, best, kf, n) or kf.kf_id in m.landmarks[best].obs_px:
+            return -1
+        found = best
+    return found
 
 
 def merge(m: sfm_map.SfmMap, keep: int, drop: int) -> None:
