@@ -241,6 +241,7 @@ def score(engine: sfm.IncrementalSfm, poses: dict[int, np.ndarray],
     out['vertices'] = len(points)
     out['vertices_unique'] = len(sfm_vertices.targets(m)[0])
     out['vertices_usable'] = int(np.sum(usable))
+    out.update(vertex_identities(m, truth))
     for suffix, sim in (('', sim_pose), ('_centres', (s, R, t))):
         if not points:
             break
@@ -278,10 +279,31 @@ def _vertex_truth(m: Any, truth: dict[int, Any], gt: dict[str, Any]
         if truth[kf] is None:
             true_pts.append(None)
             continue
-        j = int(np.flatnonzero(m.keyframes[kf].vertices.landmark_of == lm_id)[0])
-        obj, vid = truth[kf][j]
+        obj, vid = _true_ids(m, truth, lm_id)[0]
         true_pts.append(np.array(gt['targets'][obj]['vertices_world_m'][vid]))
     return points, true_pts, usable
+
+
+def _true_ids(m: Any, truth: dict[int, Any], lm_id: int) -> list[tuple[int, int]]:
+    """The true (object, vertex) of each observation of a vertex landmark (the first scored)."""
+    return [tuple(truth[kf][int(np.flatnonzero(m.keyframes[kf].vertices.landmark_of == lm_id)[0])])
+            for kf in m.landmarks[lm_id].obs_px]
+
+
+def vertex_identities(m: Any, truth: dict[int, Any]) -> dict[str, int]:
+    """
+    With ground-truth vertices: landmarks whose observations are of more than one true corner
+    (a mismatch), and landmarks beyond one per true corner (a corner that started a second
+    landmark), each by the corner of its first observation as the error figures score it.
+    """
+    firsts, mixed = [], 0
+    for lm_id, lm in m.landmarks.items():
+        if lm.label is None or truth[next(iter(lm.obs_px))] is None:
+            continue
+        ids = _true_ids(m, truth, lm_id)
+        firsts.append(ids[0])
+        mixed += len(set(ids)) > 1
+    return {'vertices_mixed': mixed, 'vertices_duplicate': len(firsts) - len(set(firsts))}
 
 
 def cloud_lengths(engine: sfm.IncrementalSfm, m: Any, sim3: tuple[float, np.ndarray, np.ndarray],

@@ -6,6 +6,7 @@ import numpy as np
 
 from absscale_ros.core import sfm
 from absscale_ros.core import vertex_matching as vm
+from absscale_ros.tools import bench_sfm
 
 sys.path.insert(0, str(Path(__file__).parent))
 import sfm_scenes  # noqa: E402
@@ -40,3 +41,7 @@ def test_a_corner_seen_again_after_a_gap_extends_its_landmark() -> None:
     assert all(len(v) == 1 for v in seen.values())  # one landmark per corner
     back = m.landmarks[seen[hidden][0]].obs_px.keys()
     assert min(back) <= 2 and max(back) >= 7  # seen before and after the gap
+    # bench sfm's identity figures on the same map
+    ids = bench_sfm.vertex_identities(m, {k: [(0, int(t)) for t in ts]
+                                          for k, ts in enumerate(truth)})
+    assert ids == {'vertices_mixed': 0, 'vertices_duplicate': 0}
