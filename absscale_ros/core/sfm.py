@@ -152,8 +152,6 @@ class IncrementalSfm:
         # the (landmark, keyframe) observations already aligned.
         self._grey: dict[int, npt.NDArray[np.uint8]] = {}
         self._refined: set[tuple[int, int]] = set()
-        self._defer = False  # live: batch and refinement wait for idle time (``adjust_if_due``)
-        self._unrefined: list[int] = []  # ... the keyframes whose refinement waits, in order
         self._undistort = landmark_refine.undistort_maps(camera) \
             if cfg.refine_cfg.max_observations > 0 and camera.has_distortion else None
 
@@ -183,11 +181,9 @@ class IncrementalSfm:
         :param step: its motion from the previous keyframe as the keyframe selector tracked it
             (None: unknown); a pose that disagrees with it is refused.
         :param features: ``detect(image_bgr)`` if already computed (None: detected here).
-        :param defer_batch: leave a due batch adjustment, and the observation refinement, to
-            ``adjust_if_due`` (live: run once this keyframe is published and no newer one
-            waits; the batch costs seconds, the refinement half of the update).
+        :param defer_batch: leave a due batch adjustment to ``adjust_if_due`` (live: run once
+            this keyframe is published and no newer one waits; it costs seconds).
         """
-        self._defer = defer_batch
         if step is not None:
             self._steps[stamp_ns] = step
             while len(self._steps) > self.cfg.max_failures + 2:  # enough to bridge drops
@@ -216,17 +212,9 @@ class IncrementalSfm:
         return self._result(status, msg)
 
     def adjust_if_due(self, stop: Callable[[], bool] | None = None) -> int | None:
-        """The work ``defer_batch`` left out, one piece a call: the refinement of the newest
-        keyframe left unrefined (0), else the batch adjustment if the current segment is due one
-        (the landmarks it culled); None: nothing to do. ``stop``: see ``SfmGraph.batch``."""
+        """The batch adjustment ``defer_batch`` left out, if the current segment is due one:
+        the landmarks it culled (None: not due). ``stop``: see ``SfmGraph.batch``."""
         seg = self.current
-        while self._unrefined:  # the newest first: it aligns the older kept keyframes' too
-            kf = seg.map.keyframes.get(self._unrefined.pop())
-            if kf is not None:  # into iSAM2 too (its factors of them went in unrefined)
-                before = set(self._refined)
-                self._refine(seg.map, kf)
-                seg.graph.refresh(seg.map, self._refined - before)
-                return 0
         if not seg.initialised or not seg.graph.batch_due(len(seg.map.keyframes)):
             return None
         return seg.graph.batch(seg.map, self._progress, stop)
@@ -399,10 +387,7 @@ class IncrementalSfm:
                             for n in neighbours[:self.cfg.match_window])
                 sfm_vertices.link(seg.map, self.K, kf, neighbours[:self.cfg.match_window],
                                   self.cfg.twoview_cfg, self.cfg.vertex_cfg)
-                refined = 0 if self._defer else self._refine(seg.map, kf)
-                if self._defer and self.cfg.refine_cfg.max_observations > 0:
-                    keep = self.cfg.refine_cfg.keep_images  # older ones' images are gone
-                    self._unrefined = self._unrefined[1 - keep:] + [kf.kf_id]
+                refined = self._refine(seg.map, kf)
                 seg.graph.update(seg.map)
                 return status, (f'{len(inliers)} PnP inliers, {guided} more from the local map, '
                                 f'{added} new landmarks, {refined} observations refined')

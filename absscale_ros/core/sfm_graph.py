@@ -110,11 +110,6 @@ class SegmentGraph:
         self._gauge_done = free_from >= 0  # held keyframes fix the gauge
         self._all_pending = True  # next _new_terms looks at every landmark, not just dirty ones
         self._held_views: list[tuple[int, int]] = []  # (lm_id, kf_id) for ``_add_held``
-        # iSAM2's index of each projection factor (kf_id, lm_id) of a free keyframe, so that a
-        # refined observation can replace it (``refresh``); and its position in the graph
-        # ``_new_terms`` builds, until that goes in.
-        self._index_of: dict[tuple[int, int], int] = {}
-        self._pos_of: dict[tuple[int, int], int] = {}
 
     def release(self) -> None:
         """Let go of the iSAM2 state (a finished segment); ``batch`` still works after."""
@@ -231,7 +226,6 @@ class SegmentGraph:
         is looked at again when ``SfmMap.observe`` gives it another view.
         """
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-        self._pos_of = {}
         if not self._gauge_done:
             self._gauge(m, graph)
             self._gauge_done = True
@@ -279,7 +273,6 @@ class SegmentGraph:
                 else:
                     graph.add(self._held_factor(m, lm, kf_id, lm_id))
                 continue
-            self._pos_of[kf_id, lm_id] = graph.size()
             graph.add(gtsam.GenericProjectionFactorCal3_S2(uv, noise, _X | kf_id, lm_key,
                                                            self._cal))
             if (_X | kf_id) not in keys:
@@ -334,7 +327,7 @@ class SegmentGraph:
         if graph.size() == 0:
             return
         try:
-            self._added(self._isam.update(graph, values, [], self._poses_last()))
+            self._isam.update(graph, values, [], self._poses_last())
         except RuntimeError:  # gtsam IndeterminantLinearSystem: damped batch LM copes with it
             if not fallback:
                 raise
@@ -343,34 +336,6 @@ class SegmentGraph:
         self._write_back(m, self._isam.calculateEstimate())
         # The newest window: they moved most, and matching and the local map look only there.
         self._retriangulate(m, [k for k in ids[-self._cfg.window:] if k >= self._free_from])
-
-    def _added(self, result: gtsam.ISAM2Result) -> None:
-        """The graph positions ``_add_landmark`` noted become iSAM2's factor indices."""
-        indices = result.getNewFactorsIndices()
-        self._index_of.update((pair, indices[pos]) for pair, pos in self._pos_of.items())
-        self._pos_of = {}
-
-    def refresh(self, m: sfm_map.SfmMap, pairs: set[tuple[int, int]]) -> None:
-        """
-        Replace iSAM2's factors of the observations ``pairs`` (lm_id, kf_id) by their moved
-        pixels (live, the refinement comes after the keyframe's update) and write the new
-        estimate into ``m``; the others (held keyframes, landmarks not in) are taken with their
-        moved pixels when iSAM2 restarts or a batch comes.
-        """
-        graph, removed, landmarks = gtsam.NonlinearFactorGraph(), [], m.landmarks
-        self._pos_of = {}
-        for lm_id, kf_id in pairs:
-            index, lm = self._index_of.get((kf_id, lm_id)), landmarks.get(lm_id)
-            if index is None or lm is None or kf_id not in lm.obs_px:
-                continue
-            removed.append(index)
-            self._pos_of[kf_id, lm_id] = graph.size()
-            graph.add(gtsam.GenericProjectionFactorCal3_S2(
-                lm.obs_px[kf_id], self._noise_of(lm), pose_key(kf_id), point_key(lm_id),
-                self._cal))
-        if removed:
-            self._added(self._isam.update(graph, gtsam.Values(), removed, self._poses_last()))
-            self._write_back(m, self._isam.calculateEstimate())
 
     def _retriangulate(self, m: sfm_map.SfmMap, kf_ids: list[int]) -> None:
         """

@@ -4,9 +4,8 @@ updates that never queue.
 
 Live, a keyframe that arrives while another still waits for the map replaces it: the waiting
 one is skipped, and its tracked step is kept so the next keyframe the map takes has a step
-from the last keyframe the map saw (the skipped steps chained). The work the updates defer
-(the observation refinement, the periodic batch adjustment) runs in short pieces once no
-keyframe waits, and a keyframe that comes meanwhile goes before the next piece. Threads
+from the last keyframe the map saw (the skipped steps chained). The periodic batch
+adjustment runs once no keyframe waits, and pauses for one that comes meanwhile. Threads
 and clocks come in as callables (an executor's ``submit``, ``time.monotonic_ns``), so tests
 drive this deterministically.
 """
@@ -64,7 +63,7 @@ class LiveUpdates(Generic[T]):
     :param submit: runs the update loop on the (single) update worker.
     :param clock_ns: monotonic clock, ns (one clock for all processes: the latency timeline).
     :param process: adds a keyframe to the map and publishes it.
-    :param adjust: runs a piece of the work the updates deferred, if any; whether it ran. It
+    :param adjust: runs the batch adjustment the updates deferred, if due; whether it ran. It
         is given a callable saying whether a keyframe now waits, to pause the adjustment.
     :param skip: releases a keyframe replaced while waiting; returns its tracked step.
     :param on_error: logs an exception of ``process`` or ``adjust`` (a worker's would vanish).
@@ -83,7 +82,7 @@ class LiveUpdates(Generic[T]):
         self._arrived_ns: dict[int, int] = {}
         # Per keyframe added: stamp, and when its image arrived, its update started and ended.
         self.timeline_ns: list[tuple[int, int, int, int]] = []
-        self.batch_ms: list[float] = []  # the deferred pieces: refinements, batch steps
+        self.batch_ms: list[float] = []  # the deferred batch adjustments' steps
 
     def arrived(self, stamp_ns: int) -> None:
         """A keyframe's image came (the start of its latency)."""
@@ -114,9 +113,9 @@ class LiveUpdates(Generic[T]):
 
     def _loop(self) -> None:
         """
-        Add the waiting keyframe to the map until none waits; then a piece of the work the
-        updates left out (the batch adjustment pauses for a keyframe that comes meanwhile), and
-        look again.
+        Add the waiting keyframe to the map until none waits; then the batch adjustment its
+        update left out, if due (it pauses for a keyframe that comes meanwhile and goes on
+        after it), and look again.
         """
         while True:
             with self._lock:
@@ -145,7 +144,7 @@ class LiveUpdates(Generic[T]):
         try:
             ran = self._adjust(lambda: self._waiting is not None)
         except Exception as err:  # noqa: BLE001 (a worker's exception would vanish)
-            self._on_error(f'deferred refinement or batch adjustment failed: {err!r}')
+            self._on_error(f'batch adjustment failed: {err!r}')
             return False
         if ran:
             self.batch_ms.append(1e-6 * (self._clock_ns() - t0))

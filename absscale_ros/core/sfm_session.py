@@ -77,9 +77,8 @@ class SfmSession:
             return self.last
 
     def adjust_if_due(self, stop: Callable[[], bool] | None = None) -> bool:
-        """Run a piece of the work deferred updates left out (a keyframe's refinement, a step
-        of the batch adjustment), if any; whether it ran. ``stop``: asked between the batch's
-        steps whether to pause it (a keyframe waits)."""
+        """Run the batch adjustment that deferred updates left out, if due; whether it ran.
+        ``stop``: asked between its steps whether to pause it (a keyframe waits)."""
         with self._lock:
             return self.engine is not None and self.engine.adjust_if_due(stop) is not None
 

@@ -108,8 +108,7 @@ def test_the_deferred_adjustment_runs_once_idle_and_failures_are_reported() -> N
     h = Harness(adjust=broken)
     h.release.set()
     h.live.offer(STAMPS[0], (STAMPS[0], None))
-    assert h.idle() and h.errors == [
-        "deferred refinement or batch adjustment failed: ValueError('singular')"]
+    assert h.idle() and h.errors == ["batch adjustment failed: ValueError('singular')"]
     assert [s for s, _ in h.processed] == [STAMPS[0]] and h.live.batch_ms == []
 
 

@@ -67,11 +67,14 @@ def test_a_live_sfm_behind_takes_the_newest_keyframe_and_chains_the_skipped_step
     assert values['keyframes_skipped'] == '4'  # the user sees it
 
 
-def _one_at_a_time(context, seq, stamps, overrides, after_each=lambda node: None):
-    """A live node fed the keyframes one at a time, each once the last is done (a due batch
-    adjustment and the deferred refinement included); the node and its probe."""
+def test_a_live_sfm_adjusts_after_publishing_and_keeps_the_offline_map(context) -> None:
+    """Keyframes one at a time, each once the last is done: none skipped, and the batch
+    adjustment a due update left for later gives the map the core gives offline (there the
+    batch is inside the update)."""
+    seq = sfm_scenes.make_sequence('indoor_paper', 1, count=6)
+    stamps = [(k + 1) * 100_000_000 for k in range(len(seq.images_bgr))]
     node = SfmNode(context=context, parameter_overrides=[
-        Parameter('qos', value='sensor_data'), *overrides])
+        Parameter('qos', value='sensor_data'), Parameter('graph.batch_every', value=3)])
     probe = Probe(context=context)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
@@ -82,22 +85,12 @@ def _one_at_a_time(context, seq, stamps, overrides, after_each=lambda node: None
         for k, image in enumerate(seq.images_bgr):
             probe.send(seq.camera, stamps[k], image, _rows(sfm_scenes.detections(seq, k, rng)[0]),
                        _tracked(seq, k, stamps))
+            # Idle again (a due batch adjustment included) before the next keyframe comes.
             assert spin_until(executor, lambda: len(probe.got[OUTPUTS[1]]) == k + 1
                               and not node.live.busy, timeout_s=30.0)
-            after_each(node)
     finally:
         executor.shutdown()
         node.destroy_node()
-    return node, probe
-
-
-def test_a_live_sfm_adjusts_after_publishing_and_keeps_the_offline_map(context) -> None:
-    """Keyframes one at a time, each once the last is done: none skipped, and the batch
-    adjustment a due update left for later gives the map the core gives offline (there the
-    batch is inside the update)."""
-    seq = sfm_scenes.make_sequence('indoor_paper', 1, count=6)
-    stamps = [(k + 1) * 100_000_000 for k in range(len(seq.images_bgr))]
-    node, _ = _one_at_a_time(context, seq, stamps, [Parameter('graph.batch_every', value=3)])
     assert node.live.skipped == 0 and len(node.live.batch_ms) >= 1
     cfg = sfm.SfmConfig()
     cfg = sfm.replace(cfg, graph_cfg=sfm.replace(cfg.graph_cfg, batch_every=3))
@@ -111,30 +104,3 @@ def test_a_live_sfm_adjusts_after_publishing_and_keeps_the_offline_map(context) 
     node_ids, node_T = node.session.engine.current.map.poses()
     assert len(ids) == len(node_ids) == 6
     assert np.allclose(node_T[:, :3, 3], T[:, :3, 3], atol=1e-5)
-
-
-def test_a_live_sfm_refines_once_idle_and_into_the_map(context) -> None:
-    """Live, a keyframe's observation refinement waits until it is published and nothing
-    waits; then its refined observations replace those its update put into iSAM2."""
-    seq = sfm_scenes.make_sequence('outdoor_cube', 1, count=5)
-    stamps = [(k + 1) * 100_000_000 for k in range(len(seq.images_bgr))]
-    refined = []
-
-    def idle(node) -> None:
-        refined.append(len(node.session.engine._refined))
-        assert node.session.engine._unrefined == []  # done while idle
-
-    node, probe = _one_at_a_time(context, seq, stamps,
-                                 [Parameter('refine.max_observations', value=600)], idle)
-    texts = [d.status[0].message for d in probe.diags]
-    registered = [t for t in texts if 'observations refined' in t]
-    assert len(registered) >= 2 and all(' 0 observations refined' in t for t in registered)
-    assert refined[-1] > refined[2] > 0  # refined once published, keyframe after keyframe
-    engine = node.session.engine
-    m, g = engine.current.map, engine.current.graph
-    factors = g._isam.getFactorsUnsafe()
-    held = [(factors.at(g._index_of[k, lm_id]).measured(), m.landmarks[lm_id].obs_px[k])
-            for lm_id, k in engine._refined if (k, lm_id) in g._index_of
-            and lm_id in m.landmarks and k in m.landmarks[lm_id].obs_px]
-    # iSAM2 holds the refined pixels (most moved: the rest failed their check, kept as detected)
-    assert len(held) > 100 and all(np.allclose(a, b) for a, b in held)
