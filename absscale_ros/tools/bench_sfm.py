@@ -279,13 +279,22 @@ def _vertex_truth(m: Any, truth: dict[int, Any], gt: dict[str, Any]
         if truth[kf] is None:
             true_pts.append(None)
             continue
-        obj, vid = _true_ids(m, truth, lm_id)[0]
+        obj, vid = _corner(_true_ids(m, truth, lm_id))
         true_pts.append(np.array(gt['targets'][obj]['vertices_world_m'][vid]))
     return points, true_pts, usable
 
 
+def _corner(ids: list[tuple[int, int]]) -> tuple[int, int]:
+    """
+    The true corner a landmark is scored against: that of most of its observations (fresh
+    outdoor 45: a landmark 0.06 % from the corner of 44 of its 45 views was scored 3 % off
+    against the corner of its first, a mismatch), the first on a tie.
+    """
+    return max(ids, key=ids.count)
+
+
 def _true_ids(m: Any, truth: dict[int, Any], lm_id: int) -> list[tuple[int, int]]:
-    """The true (object, vertex) of each observation of a vertex landmark (the first scored)."""
+    """The true (object, vertex) of each observation of a vertex landmark."""
     return [tuple(truth[kf][int(np.flatnonzero(m.keyframes[kf].vertices.landmark_of == lm_id)[0])])
             for kf in m.landmarks[lm_id].obs_px]
 
@@ -294,14 +303,14 @@ def vertex_identities(m: Any, truth: dict[int, Any]) -> dict[str, int]:
     """
     With ground-truth vertices: landmarks whose observations are of more than one true corner
     (a mismatch), and landmarks beyond one per true corner (a corner that started a second
-    landmark), each by the corner of its first observation as the error figures score it.
+    landmark), each by the corner the error figures score it against (``_corner``).
     """
     firsts, mixed = [], 0
     for lm_id, lm in m.landmarks.items():
         if lm.label is None or truth[next(iter(lm.obs_px))] is None:
             continue
         ids = _true_ids(m, truth, lm_id)
-        firsts.append(ids[0])
+        firsts.append(_corner(ids))
         mixed += len(set(ids)) > 1
     return {'vertices_mixed': mixed, 'vertices_duplicate': len(firsts) - len(set(firsts))}
 
