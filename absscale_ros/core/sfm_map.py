@@ -112,6 +112,9 @@ class SfmMap:
     keyframes: dict[int, MapKeyframe] = field(default_factory=dict)
     next_landmark_id: int = 0
     dirty: set[int] = field(default_factory=set)  # landmarks observed since the graph looked
+    # (landmark, keyframe) of target-vertex links undone (a culled observation): a corner seen
+    # again after a gap must not be tied back to a landmark through a view it was cut from.
+    unlinked_vertices: set[tuple[int, int]] = field(default_factory=set)
     _landmarks: dict[int, Landmark] = field(default_factory=dict, repr=False)
     _packed: PackedLandmarks | None = field(default=None, repr=False)
 
@@ -167,6 +170,8 @@ class SfmMap:
     def unobserve(self, lm_id: int, kf_id: int) -> None:
         self.landmarks[lm_id].obs_px.pop(kf_id, None)
         kf = self.keyframes[kf_id]
+        if kf.vertices is not None and np.any(kf.vertices.landmark_of == lm_id):
+            self.unlinked_vertices.add((lm_id, kf_id))
         for lof in (kf.landmark_of, *(() if kf.vertices is None else (kf.vertices.landmark_of,))):
             lof[lof == lm_id] = -1  # a keypoint or target vertex no longer tied to it
 

@@ -129,8 +129,9 @@ def _coinciding(m: sfm_map.SfmMap, K: FloatArray, a: sfm_map.MapKeyframe, i: int
     The vertex landmark of the same object that vertex ``i`` of ``a`` and ``j`` of ``b`` see
     again (-1: none): in both keyframes the landmark of that object projecting nearest the
     vertex, by less than half the way to the next one, and ``_projects_to`` it; not observed
-    in either yet. A corner out of view for longer than the match window would otherwise
-    become a second landmark, triangulated from a few recent views only.
+    in either yet, nor cut from either (``SfmMap.unlinked_vertices``). A corner out of view for
+    longer than the match window would otherwise become a second landmark, triangulated from a
+    few recent views only.
     """
     obj = int(a.vertices.vertices.object_ids[i])
     ids = [k for k, lm in m.landmarks.items() if lm.label is not None and lm.label[0] == obj]
@@ -147,7 +148,8 @@ def _coinciding(m: sfm_map.SfmMap, K: FloatArray, a: sfm_map.MapKeyframe, i: int
         order = np.argsort(d)
         best = int(np.asarray(ids)[front][order[0]])
         if (len(d) > 1 and d[order[0]] >= 0.5 * d[order[1]]) or found not in (-1, best) or \
-                not _projects_to(m, K, best, kf, n) or kf.kf_id in m.landmarks[best].obs_px:
+                not _projects_to(m, K, best, kf, n) or kf.kf_id in m.landmarks[best].obs_px or \
+                (best, kf.kf_id) in m.unlinked_vertices:
             return -1
         found = best
     return found
