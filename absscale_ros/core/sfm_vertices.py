@@ -136,17 +136,15 @@ def _coinciding(m: sfm_map.SfmMap, K: FloatArray, a: sfm_map.MapKeyframe, i: int
     obj = int(a.vertices.vertices.object_ids[i])
     ids = [k for k, lm in m.landmarks.items() if lm.label is not None and lm.label[0] == obj]
     found = -1
+    points = np.array([m.landmarks[k].point_world for k in ids]).reshape(-1, 3)
     for kf, n in ((a, i), (b, j)):
-        T = kf.T_world_cam
-        p_cam = (np.array([m.landmarks[k].point_world for k in ids]).reshape(-1, 3)
-                 - T[:3, 3]) @ T[:3, :3]
-        front = p_cam[:, 2] > 0.0
-        if not front.any():
+        # Behind the camera: inf, so never nearest nor the runner-up that makes it ambiguous.
+        d = np.linalg.norm(twoview.project(K, kf.T_world_cam, points)
+                           - kf.vertices.vertices.points_px[n], axis=1)
+        if not np.isfinite(d).any():
             return -1
-        uv = (p_cam[front] @ K.T)[:, :2] / p_cam[front, 2:3]
-        d = np.linalg.norm(uv - kf.vertices.vertices.points_px[n], axis=1)
         order = np.argsort(d)
-        best = int(np.asarray(ids)[front][order[0]])
+        best = ids[int(order[0])]
         if (len(d) > 1 and d[order[0]] >= 0.5 * d[order[1]]) or found not in (-1, best) or \
                 not _projects_to(m, K, best, kf, n) or kf.kf_id in m.landmarks[best].obs_px or \
                 (best, kf.kf_id) in m.unlinked_vertices:
