@@ -110,7 +110,7 @@ class BagReplayNode(Node):
                 continue
             if images and topic == common.ACK_TOPIC:
                 continue  # it hears the images themselves
-            if not images and IMAGE_TYPES[0] in types:
+            if not images and common.ANNOUNCED_IMAGE_TYPE in types:
                 continue  # it counts them from the acknowledgements
             if observer not in {i.node_name for i in self.get_subscriptions_info_by_topic(topic)}:
                 return False

@@ -20,6 +20,9 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 SENSOR = qos_profile_sensor_data
 LIVE = 'sensor_data'  # the ``qos`` parameter's value of a live run (``absscale run --live``)
+# Decoded frames (2.7 MB at 1280x720): a graph_monitor that does not record counts them from the
+# step acknowledgements that announce them, and bag_replay waits for it to hear those instead.
+ANNOUNCED_IMAGE_TYPE = 'sensor_msgs/msg/Image'
 # glibc mallopt parameters (malloc.h) and the values keep_freed_memory sets.
 M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3
 MMAP_THRESHOLD_BYTES = 32 << 20  # glibc's largest: every frame-sized buffer on the heap

@@ -29,7 +29,6 @@ LATE_JOINER = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
 # The last message of these is kept for the run's output files.
 KEPT_TOPICS = ('/scaled_cloud', '/absscale/sparse_cloud', '/absscale/keyframe_path',
                '/absscale/scaled_path', '/absscale/scale', '/absscale/sparse_cloud_metric')
-ANNOUNCED_TYPE = 'sensor_msgs/msg/Image'  # counted from acknowledgements unless recorded
 
 
 class GraphMonitorNode(Node):
@@ -87,7 +86,7 @@ class GraphMonitorNode(Node):
                 continue
             if not topic.startswith(WATCHED_PREFIXES) or len(types) != 1:
                 continue
-            if types[0] == ANNOUNCED_TYPE and self._recorder is None:
+            if types[0] == common.ANNOUNCED_IMAGE_TYPE and self._recorder is None:
                 self.announced.add(topic)
                 continue
             try:
