@@ -377,9 +377,7 @@ class SegmentGraph:
         self._paused = None  # a paused one would be older than this
         self._reset()
         graph, values = self._new_terms(m)
-        params = gtsam.LevenbergMarquardtParams()
-        params.setMaxIterations(self._cfg.batch_iterations)
-        opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+        opt = gtsam.LevenbergMarquardtOptimizer(graph, values, self._lm_params())
         if progress is not None:
             progress('batch start', graph.error(values))
         result = opt.optimize()
@@ -410,6 +408,11 @@ class SegmentGraph:
                 self._reset(self._free_from)
         return culled
 
+    def _lm_params(self) -> gtsam.LevenbergMarquardtParams:
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(self._cfg.batch_iterations)
+        return params
+
     def _batch_in_steps(self, m: sfm_map.SfmMap, progress: Progress | None,
                         stop: Callable[[], bool]) -> int:
         """
@@ -425,11 +428,8 @@ class SegmentGraph:
             builder = SegmentGraph(np.array(self._cal.K()), self._cfg)
             graph, values = builder._new_terms(m)
             m.dirty.update(dirty)
-            params = gtsam.LevenbergMarquardtParams()
-            params.setMaxIterations(self._cfg.batch_iterations)
-            self._paused = _PausedBatch(gtsam.LevenbergMarquardtOptimizer(graph, values, params),
-                                        max(m.keyframes), len(m.keyframes),
-                                        self._cfg.batch_iterations)
+            self._paused = _PausedBatch(graph, values, self._lm_params(), max(m.keyframes),
+                                        len(m.keyframes))
             if progress is not None:
                 progress('batch start', graph.error(values))
         b = self._paused
@@ -449,12 +449,13 @@ class SegmentGraph:
 class _PausedBatch:
     """A batch Levenberg-Marquardt run one iteration at a time (``SegmentGraph.batch``)."""
 
-    def __init__(self, opt: gtsam.LevenbergMarquardtOptimizer, newest: int, size: int,
-                 max_iterations: int) -> None:
-        self.opt, self.newest, self.size, self._max = opt, newest, size, max_iterations
-        self.error = opt.error()
-        p = gtsam.LevenbergMarquardtParams()
-        self._tol = (p.getRelativeErrorTol(), p.getAbsoluteErrorTol(), p.getErrorTol())
+    def __init__(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+                 params: gtsam.LevenbergMarquardtParams, newest: int, size: int) -> None:
+        self.opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+        self.newest, self.size, self._max = newest, size, params.getMaxIterations()
+        self.error = self.opt.error()
+        self._tol = (params.getRelativeErrorTol(), params.getAbsoluteErrorTol(),
+                     params.getErrorTol())
         self.done = self.error <= self._tol[2]
 
     def iterate(self) -> None:
