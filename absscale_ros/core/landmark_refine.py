@@ -75,9 +75,31 @@ def plane_normals(points: FloatArray, cloud: FloatArray, neighbours: int) -> Flo
     return np.linalg.eigh(np.einsum('nki,nkj->nij', nb, nb))[1][:, :, 0]
 
 
+def tile_size(cfg: RefineConfig) -> int:
+    """Side of the square tile around an observation that ``align`` compares, px."""
+    return 2 * (cfg.half_patch_px + cfg.margin_px) + 1
+
+
+def ref_tiles(ref: Grey, uv_ref: FloatArray, cfg: RefineConfig) -> Grey:
+    """
+    (N, s, s) tiles of ``ref`` centred on ``uv_ref`` (N, 2) undistorted px, bilinear: what
+    ``align`` compares with the other keyframe. A landmark is aligned to the same reference
+    observation in several keyframes, so its tile can be kept (the same pixels as here).
+    """
+    n, s = len(uv_ref), tile_size(cfg)
+    grid = np.arange(s, dtype=np.float64) - (s - 1) // 2
+    u = (uv_ref[:, 0, None, None] + grid[None, None, :]).astype(np.float32)
+    v = (uv_ref[:, 1, None, None] + grid[None, :, None]).astype(np.float32)
+    out = cv2.remap(ref, np.broadcast_to(u, (n, s, s)).reshape(n * s, s),
+                    np.broadcast_to(v, (n, s, s)).reshape(n * s, s), cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(n, s, s)
+
+
 def align(ref: Grey, img: Grey, T_ref: FloatArray, T_img: FloatArray, K: FloatArray,
           points: FloatArray, normals: FloatArray, uv_ref: FloatArray,
-          cfg: RefineConfig) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
+          cfg: RefineConfig, tiles: Grey | None = None
+          ) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
     """
     Where the patches around ``uv_ref`` in ``ref`` appear in ``img``.
 
@@ -86,36 +108,69 @@ def align(ref: Grey, img: Grey, T_ref: FloatArray, T_img: FloatArray, K: FloatAr
 
     :param T_ref, T_img: (4, 4) T_world_cam of the two keyframes.
     :param uv_ref: (N, 2) undistorted px in ``ref``.
+    :param tiles: ``ref_tiles(ref, uv_ref, cfg)`` if kept from before (None: made here).
     :returns: (N, 2) undistorted px in ``img``, and (N,) whether alignment succeeded.
     """
     n, r, m = len(points), cfg.half_patch_px, cfg.margin_px
     if n == 0:
         return np.zeros((0, 2)), np.zeros(0, bool)
-    s = 2 * (r + m) + 1
+    s = tile_size(cfg)
     most = (2**15 - 1) // s  # cv2.remap takes images of fewer than 2^15 rows
     if n > most:
         parts = [align(ref, img, T_ref, T_img, K, points[a:a + most], normals[a:a + most],
-                       uv_ref[a:a + most], cfg) for a in range(0, n, most)]
+                       uv_ref[a:a + most], cfg, None if tiles is None else tiles[a:a + most])
+                 for a in range(0, n, most)]
         return np.concatenate([q[0] for q in parts]), np.concatenate([q[1] for q in parts])
     grid = np.arange(-(r + m), r + m + 1, dtype=np.float64)
-    ox, oy = np.meshgrid(grid, grid)
     R_a, t_a, R_b, t_b = T_ref[:3, :3], T_ref[:3, 3], T_img[:3, :3], T_img[:3, 3]
-    u_a = uv_ref[:, 0, None, None] + ox  # (N, s, s) px of the reference tile
-    v_a = uv_ref[:, 1, None, None] + oy
-    rays = np.stack([(u_a - K[0, 2]) / K[0, 0], (v_a - K[1, 2]) / K[1, 1],
-                     np.ones_like(u_a)], axis=-1)  # camera a, z = 1
+    K_inv = np.linalg.inv(K)
+    # Ray-plane depth at a pixel of a is num / (n_a . ray), with ray = K^-1 (u, v, 1) (z = 1),
+    # so the plane maps a to b by the homography K (num R + t n_a^T) K^-1 (R, t: a -> b); a
+    # depth off the plane's plausible range is replaced by the point's own (fronto-parallel:
+    # K (z R + t e_z^T) K^-1). Both per patch, evaluated on the tile's pixels: no per-pixel
+    # rays or 3D points.
+    R, t = R_b.T @ R_a, R_b.T @ (t_a - t_b)
     n_a = normals @ R_a  # the planes in camera a
-    depth = np.sum(n_a * ((points - t_a) @ R_a), axis=1)[:, None, None] / \
-        np.einsum('nijk,nk->nij', rays, n_a)
-    z_pt = ((points - t_a) @ R_a)[:, 2][:, None, None]
-    depth = np.where(np.isfinite(depth) & (depth > 0.2 * z_pt) & (depth < 5.0 * z_pt),
-                     depth, z_pt)  # grazing planes: fronto-parallel instead
-    p_b = ((rays * depth[..., None]) @ R_a.T + t_a - t_b) @ R_b
-    u_b = K[0, 0] * p_b[..., 0] / p_b[..., 2] + K[0, 2]
-    v_b = K[1, 1] * p_b[..., 1] / p_b[..., 2] + K[1, 2]
+    p_a = (points - t_a) @ R_a
+    num, z_pt = np.sum(n_a * p_a, axis=1), p_a[:, 2]
+    plane = K @ (num[:, None, None] * R + t[:, None] * n_a[:, None, :]) @ K_inv  # (N, 3, 3)
+    flat = K @ (z_pt[:, None, None] * R + np.outer(t, [0.0, 0.0, 1.0])) @ K_inv
+
+    def apply(H: FloatArray, u: FloatArray, v: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Pixels of a through the (N, 3, 3) homographies: u (N, 1, S) and v (N, R, 1) (or
+        both (N, R, S)) give (N, R, S) (separable: one full-size sum per row of H)."""
+        h = H[:, :, :, None, None]
+        w = h[:, 2, 0] * u + (h[:, 2, 1] * v + h[:, 2, 2])
+        return ((h[:, 0, 0] * u + (h[:, 0, 1] * v + h[:, 0, 2])) / w,
+                (h[:, 1, 0] * u + (h[:, 1, 1] * v + h[:, 1, 2])) / w)
+    u_a = uv_ref[:, 0, None, None] + grid[None, None, :]  # (N, 1, s) and (N, s, 1): the tile
+    v_a = uv_ref[:, 1, None, None] + grid[None, :, None]
+    n_k = n_a @ K_inv  # n_a . ray = n_k . (u, v, 1): linear in the pixel
+
+    def on_plane(rows: npt.NDArray[np.int64], u: FloatArray, v: FloatArray
+                 ) -> npt.NDArray[np.bool_]:
+        """Whether the plane's depth at the pixels (u, v) of patches ``rows`` is plausible."""
+        c = n_k[rows][:, :, None, None]
+        with np.errstate(divide='ignore', invalid='ignore'):
+            depth = num[rows, None, None] / (c[:, 0] * u + (c[:, 1] * v + c[:, 2]))
+        z = z_pt[rows, None, None]
+        return np.isfinite(depth) & (depth > 0.2 * z) & (depth < 5.0 * z)
+    # The depth's inverse is linear in the pixel, so a patch whose 4 tile corners are on the
+    # plane is so everywhere; only the others are checked pixel by pixel.
+    ends = grid[[0, -1]]
+    corners = on_plane(np.arange(n), uv_ref[:, 0, None, None] + ends[None, None, :],
+                       uv_ref[:, 1, None, None] + ends[None, :, None])
+    mixed = np.flatnonzero(~corners.all(axis=(1, 2)))
+    u_a = uv_ref[:, 0, None, None] + grid[None, None, :]  # (N, 1, s) and (N, s, 1): the tile
+    v_a = uv_ref[:, 1, None, None] + grid[None, :, None]
+    u_b, v_b = apply(plane, u_a, v_a)
+    if len(mixed):  # those patches' off-plane pixels: fronto-parallel
+        ok = on_plane(mixed, u_a[mixed], v_a[mixed])
+        fu, fv = apply(flat[mixed], u_a[mixed], v_a[mixed])
+        u_b[mixed] = np.where(ok, u_b[mixed], fu)
+        v_b[mixed] = np.where(ok, v_b[mixed], fv)
     f32 = np.float32
-    A = cv2.remap(ref, u_a.reshape(n * s, s).astype(f32), v_a.reshape(n * s, s).astype(f32),
-                  cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    A = (ref_tiles(ref, uv_ref, cfg) if tiles is None else tiles).reshape(n * s, s)
     B = cv2.remap(img, u_b.reshape(n * s, s).astype(f32), v_b.reshape(n * s, s).astype(f32),
                   cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     centre = np.stack([np.full(n, r + m), r + m + s * np.arange(n)], 1).astype(f32)[:, None]
@@ -133,9 +188,18 @@ def align(ref: Grey, img: Grey, T_ref: FloatArray, T_img: FloatArray, K: FloatAr
     x = np.clip(shift[:, 0] + r + m, 0.0, s - 1.001)
     y = np.clip(shift[:, 1] + r + m, 0.0, s - 1.001)
     x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
-    fx, fy, i = x - x0, y - y0, np.arange(n)
+    fx, fy = x - x0, y - y0
+    # The warp at the 4 tile pixels around it, (N, 2, 2): rows y0, y0 + 1; columns x0, x0 + 1.
+    cu = uv_ref[:, 0, None, None] + grid[np.stack([x0, x0 + 1], 1)][:, None, :]
+    cv = uv_ref[:, 1, None, None] + grid[np.stack([y0, y0 + 1], 1)][:, :, None]
+    ub, vb = apply(plane, cu, cv)
+    if len(mixed):
+        ok4 = on_plane(mixed, cu[mixed], cv[mixed])
+        fu, fv = apply(flat[mixed], cu[mixed], cv[mixed])
+        ub[mixed] = np.where(ok4, ub[mixed], fu)
+        vb[mixed] = np.where(ok4, vb[mixed], fv)
 
     def at(M: FloatArray) -> FloatArray:
-        return ((1 - fx) * (1 - fy) * M[i, y0, x0] + fx * (1 - fy) * M[i, y0, x0 + 1] +
-                (1 - fx) * fy * M[i, y0 + 1, x0] + fx * fy * M[i, y0 + 1, x0 + 1])
-    return np.stack([at(u_b), at(v_b)], axis=1), ok
+        return ((1 - fx) * (1 - fy) * M[:, 0, 0] + fx * (1 - fy) * M[:, 0, 1] +
+                (1 - fx) * fy * M[:, 1, 0] + fx * fy * M[:, 1, 1])
+    return np.stack([at(ub), at(vb)], axis=1), ok

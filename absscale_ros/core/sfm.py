@@ -18,7 +18,7 @@ import numpy as np
 import numpy.typing as npt
 
 from absscale_ros.core import aliasing, errors, keyframes, landmark_quality, local_map, sfm_graph
-from absscale_ros.core import landmark_refine, sfm_map
+from absscale_ros.core import landmark_refine, sfm_map, sfm_refine
 from absscale_ros.core import sfm_vertices, twoview
 from absscale_ros.core import features as feat
 from absscale_ros.core import vertex_matching as vm
@@ -148,12 +148,7 @@ class IncrementalSfm:
         self._next_kf = 0
         self._failures = 0
         self._steps: dict[int, keyframes.TrackedStep] = {}  # of the newest keyframes, by stamp
-        # Observation refinement: undistorted grey images of the newest keyframes by id, and
-        # the (landmark, keyframe) observations already aligned.
-        self._grey: dict[int, npt.NDArray[np.uint8]] = {}
-        self._refined: set[tuple[int, int]] = set()
-        self._undistort = landmark_refine.undistort_maps(camera) \
-            if cfg.refine_cfg.max_observations > 0 and camera.has_distortion else None
+        self._refiner = sfm_refine.ObservationRefiner(camera, cfg.refine_cfg)
 
     def _new_segment(self) -> Segment:
         return Segment(sfm_map.SfmMap(), sfm_graph.SegmentGraph(self.K, self.cfg.graph_cfg))
@@ -196,8 +191,7 @@ class IncrementalSfm:
                                   points_px=feat.undistort_px(self.camera, vertices.points_px))
             kf.vertices = sfm_vertices.make(undistorted, image_bgr, self.cfg.vertex_cfg)
         self._next_kf += 1
-        if self.cfg.refine_cfg.max_observations > 0:
-            self._grey[kf.kf_id] = landmark_refine.undistorted_grey(image_bgr, self._undistort)
+        self._refiner.add_image(kf.kf_id, image_bgr)
         seg = self.current
         if not seg.initialised:
             status, msg = self._try_initialise(seg, kf)
@@ -208,7 +202,8 @@ class IncrementalSfm:
             culled = seg.graph.batch(seg.map, self._progress)
             msg += f'; batch adjustment culled {culled} landmarks'
         self._forget_descriptors()
-        self._forget_images()
+        self._refiner.keep(set(self.current.map.keyframes) |
+                           {p.kf_id for p in self.current.pending})
         return self._result(status, msg)
 
     def adjust_if_due(self, stop: Callable[[], bool] | None = None) -> int | None:
@@ -241,60 +236,6 @@ class IncrementalSfm:
             if seg is not self.current and not seg.released:
                 seg.graph.release()  # a finished segment's iSAM2 (~100 MB) until ``finish``
                 seg.released = True
-
-    def _forget_images(self) -> None:
-        """Keep the grey images of the newest ``keep_images`` keyframes of the current map."""
-        if not self._grey:
-            return
-        kept = [k for k in sorted(self._grey) if k in self.current.map.keyframes or
-                any(p.kf_id == k for p in self.current.pending)]
-        kept = set(kept[-self.cfg.refine_cfg.keep_images:])
-        self._grey = {k: v for k, v in self._grey.items() if k in kept}
-        self._refined = {p for p in self._refined if p[1] in kept}
-
-    def _refine(self, m: sfm_map.SfmMap, kf: sfm_map.MapKeyframe) -> int:
-        """
-        Align the observations of the landmarks ``kf`` sees (``landmark_refine``), up to
-        ``max_observations``, each to the landmark's oldest observation with an image kept;
-        returns how many moved (a failed alignment keeps the detected position).
-        """
-        cfg, grey, lms = self.cfg.refine_cfg, self._grey, m.landmarks
-        if cfg.max_observations <= 0:
-            return 0
-        seen = np.unique(kf.landmark_of[kf.landmark_of >= 0]).tolist()
-        todo = []
-        for lm_id in seen:
-            lm = lms.get(lm_id)
-            if lm is None or lm.label is not None or len(lm.obs_px) < cfg.min_views:
-                continue
-            kept = sorted(k for k in lm.obs_px if k in grey)
-            todo += [(-len(lm.obs_px), lm_id, kept[0], k) for k in kept[1:]
-                     if (lm_id, k) not in self._refined]
-        todo = sorted(todo)[:cfg.max_observations]
-        if not todo:
-            return 0
-        cloud = np.array([lms[i].point_world for i in seen if i in lms])
-        groups: dict[tuple[int, int], list[int]] = {}
-        for _, lm_id, a, k in todo:
-            groups.setdefault((a, k), []).append(lm_id)
-        # One normal per landmark, though it is aligned into several keyframes (one KD-tree).
-        ids = sorted({lm_id for _, lm_id, _, _ in todo})
-        normal_of = dict(zip(ids, landmark_refine.plane_normals(
-            np.array([lms[i].point_world for i in ids]), cloud, cfg.neighbours)))
-        moved = 0
-        for (a, k), group in sorted(groups.items()):
-            uv, ok = landmark_refine.align(
-                grey[a], grey[k], m.keyframes[a].T_world_cam, m.keyframes[k].T_world_cam, self.K,
-                np.array([lms[i].point_world for i in group]),
-                np.array([normal_of[i] for i in group]),
-                np.array([lms[i].obs_px[a] for i in group]), cfg)
-            for lm_id, uv_k, good in zip(group, uv, ok.tolist()):
-                self._refined.add((lm_id, k))
-                if good:
-                    lms[lm_id].obs_px[k] = uv_k
-                    m.dirty.add(lm_id)
-                    moved += 1
-        return moved
 
     def finish(self) -> UpdateResult:
         """Final batch adjustment of every initialised segment; the result of the current one."""
@@ -387,7 +328,7 @@ class IncrementalSfm:
                             for n in neighbours[:self.cfg.match_window])
                 sfm_vertices.link(seg.map, self.K, kf, neighbours[:self.cfg.match_window],
                                   self.cfg.twoview_cfg, self.cfg.vertex_cfg)
-                refined = self._refine(seg.map, kf)
+                refined = self._refiner.refine(seg.map, kf)
                 seg.graph.update(seg.map)
                 return status, (f'{len(inliers)} PnP inliers, {guided} more from the local map, '
                                 f'{added} new landmarks, {refined} observations refined')

@@ -8,7 +8,8 @@ of ``IncrementalSfm.add_keyframe`` (one OpenCV thread; decoding outside) per buc
 size, the final batch, and the camera-centre RMSE after Sim(3). With ``--pythonpath A B`` it
 runs itself once per path side by side (same load) and prints the buckets in one table, e.g.
 the code at HEAD (a ``git worktree``) against the working tree. ``--set KEY=VALUE`` changes
-the ``SfmConfig`` of every run.
+the ``SfmConfig`` of every run; ``--config outdoor_cube`` starts from that config's sfm section
+(its full-resolution refinement, ``refine.max_observations`` 600) instead of the core defaults.
 
 The 60 s bag (``/tmp/lead/bags/outdoor_cube_60s.mcap``) pans on the spot up to keyframe 36 (every
 6th frame; its first map starts at 61) and its map was refused at 142 by the off-plane check
@@ -31,13 +32,14 @@ import cv2
 import numpy as np
 
 
-def config(settings: list[str]) -> Any:
-    """``SfmConfig()`` with ``KEY=VALUE`` settings (``graph.window=6``: a stage's field)."""
+def config(settings: list[str], name: str | None = None) -> Any:
+    """``SfmConfig()`` (or config ``name``'s sfm section) with ``KEY=VALUE`` settings
+    (``graph.window=6``: a stage's field, prefixed as in the config files)."""
     from dataclasses import replace
     from absscale_ros.core import sfm
-    cfg = sfm.SfmConfig()
-    stages = {'features': 'feature_cfg', 'twoview': 'twoview_cfg', 'graph': 'graph_cfg',
-              'local_map': 'local_cfg'}
+    from absscale_ros.tools import bench_sfm
+    cfg = bench_sfm._config(argparse.Namespace(config=name))
+    stages = sfm.PARAM_PREFIXES
     for item in settings:
         key, value = item.split('=', 1)
         stage, _, name = key.rpartition('.')
@@ -49,13 +51,13 @@ def config(settings: list[str]) -> Any:
     return cfg
 
 
-def run(bag: str, every: int, limit: int, settings: list[str]) -> dict:
+def run(bag: str, every: int, limit: int, settings: list[str], name: str | None = None) -> dict:
     from absscale_ros.core import sfm
     from absscale_ros.tools import bench_sfm
     cv2.setNumThreads(1)
     args = argparse.Namespace(keyframes_from=None, select=False, every=every)
     camera, gt, frames = bench_sfm._from_bag(bag, args)
-    engine = sfm.IncrementalSfm(camera, config(settings), np.random.default_rng(0))
+    engine = sfm.IncrementalSfm(camera, config(settings, name), np.random.default_rng(0))
     rng = np.random.default_rng(0)
     rows, poses, truth = [], {}, {}
     for kf_id, (stamp, img, T, fr) in enumerate(frames):
@@ -121,13 +123,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--set', nargs='+', default=[], metavar='KEY=VALUE',
                         help='SfmConfig settings for every run, e.g. min_off_plane_support=0 '
                              '(see above) or graph.window=6')
+    parser.add_argument('--config', default=None,
+                        help="start from this config's sfm section (e.g. outdoor_cube: with "
+                             "its full-resolution refinement) instead of the core defaults")
     args = parser.parse_args(argv)
     if not args.pythonpath:
-        result = run(args.bag, args.every, args.limit, args.set)
+        result = run(args.bag, args.every, args.limit, args.set, args.config)
         print(json.dumps(result) if args.json else table({args.bag: result}, args.bucket))
         return 0
     cmd = [sys.executable, os.path.abspath(__file__), args.bag, '--every', str(args.every),
-           '--limit', str(args.limit), '--json'] + (['--set', *args.set] if args.set else [])
+           '--limit', str(args.limit), '--json'] + (['--set', *args.set] if args.set else []) + \
+        (['--config', args.config] if args.config else [])
     procs = {p: subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True,
                                  env={**os.environ, 'PYTHONPATH': p, 'OMP_NUM_THREADS': '1'})
              for p in args.pythonpath}

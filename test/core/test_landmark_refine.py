@@ -63,6 +63,22 @@ def test_alignment_of_a_view_with_itself_is_exact(pair):
     np.testing.assert_allclose(found[ok], uv0[:50][ok], atol=1e-3)
 
 
+def test_kept_reference_tiles_give_the_same_alignment(pair):
+    """``IncrementalSfm`` keeps a landmark's reference tile for its next keyframes: the result
+    must be what cutting it afresh gives, also for planes seen at a grazing angle (their
+    pixels off the plane's plausible depth fall back to fronto-parallel)."""
+    greys, T, K, uv0, X, _ = pair
+    cfg = lr.RefineConfig()
+    rng = np.random.default_rng(1)
+    normals = rng.normal(size=X[:80].shape)  # random planes: some patches partly grazing
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    args = greys[0], greys[1], T[0], T[1], K, X[:80], normals, uv0[:80], cfg
+    fresh = lr.align(*args)
+    kept = lr.align(*args, tiles=lr.ref_tiles(greys[0], uv0[:80], cfg))
+    np.testing.assert_array_equal(fresh[0], kept[0])
+    np.testing.assert_array_equal(fresh[1], kept[1])
+
+
 def _landmark_errors(engine, seq, renderer) -> np.ndarray:
     """Distance (m) of each landmark seen by >= 3 keyframes, after a Sim(3) of the keyframe
     centres onto the truth, from the true surface point behind its first observation."""
@@ -99,7 +115,7 @@ def test_sfm_with_refined_observations_is_more_accurate():
         moved[budget] = sum(int(r.message.split(' observations refined')[0].rsplit(' ', 1)[1])
                             for r in results if 'observations refined' in r.message)
         errs[budget] = _landmark_errors(engine, seq, renderer)
-        assert len(engine._grey) <= cfg.refine_cfg.keep_images
+        assert len(engine._refiner.grey) <= cfg.refine_cfg.keep_images
     print({b: (len(e), np.median(e), np.percentile(e, 90)) for b, e in errs.items()}, moved)
     assert moved[0] == 0 and moved[2000] > 1000
     assert np.median(errs[2000]) < 0.9 * np.median(errs[0])
