@@ -241,7 +241,7 @@ class IncrementalSfm:
         """Final batch adjustment of every initialised segment; the result of the current one."""
         for seg in self.segments:
             if seg.initialised:
-                seg.graph.batch(seg.map, self._progress)
+                seg.graph.batch(seg.map, self._progress, converged=True)
         return self._result('finished', f'{len(self.segments)} segment(s) adjusted', True)
 
     def _result(self, status: str, msg: str, full: bool = False) -> UpdateResult:
