@@ -117,17 +117,30 @@ def _kind(m: sfm_map.SfmMap, lm_id: int) -> str:
     return 'sheet'
 
 
-def target_points(m: sfm_map.SfmMap) -> TargetPoints:
-    """The vertex landmarks of ``m`` in object, vertex id order."""
-    rows = sorted((lm.label, lm_id) for lm_id, lm in m.landmarks.items()
-                  if lm.label is not None)
-    pts, angles = [], []
-    for _, lm_id in rows:
-        lm = m.landmarks[lm_id]
-        centres = np.array([m.keyframes[k].T_world_cam[:3, 3] for k in lm.obs_px
-                            if k in m.keyframes]).reshape(-1, 3)
-        pts.append(lm.point_world)
-        angles.append(widest_angle_deg(lm.point_world, centres))
+def vertex_angle_deg(m: sfm_map.SfmMap, lm_id: int) -> float:
+    """Widest angle between the keyframe rays to vertex landmark ``lm_id``, degrees."""
+    lm = m.landmarks[lm_id]
+    centres = np.array([m.keyframes[k].T_world_cam[:3, 3] for k in lm.obs_px
+                        if k in m.keyframes]).reshape(-1, 3)
+    return widest_angle_deg(lm.point_world, centres)
+
+
+def published_vertices(m: sfm_map.SfmMap, min_angle_deg: float) -> list[int]:
+    """
+    The vertex landmarks published as reconstructed: seen under at least ``min_angle_deg``
+    (``VertexMatchConfig.publish_min_angle_deg``). Under less, two views fix a vertex's depth
+    to tens of cm at 15 m, and the scale node would not use it either.
+    """
+    return [lm_id for lm_id, lm in m.landmarks.items()
+            if lm.label is not None and vertex_angle_deg(m, lm_id) >= min_angle_deg]
+
+
+def target_points(m: sfm_map.SfmMap, min_angle_deg: float = 0.0) -> TargetPoints:
+    """The published vertex landmarks of ``m`` (``published_vertices``) by object, vertex id."""
+    rows = sorted((m.landmarks[lm_id].label, lm_id)
+                  for lm_id in published_vertices(m, min_angle_deg))
+    pts = [m.landmarks[lm_id].point_world for _, lm_id in rows]
+    angles = [vertex_angle_deg(m, lm_id) for _, lm_id in rows]
     return TargetPoints(
         np.array(pts, np.float64).reshape(-1, 3),
         np.array([r[0][0] for r in rows], np.int32), np.array([r[0][1] for r in rows], np.int32),

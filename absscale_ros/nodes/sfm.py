@@ -7,7 +7,8 @@ tracked step, against which a registration is checked), paired by stamp, and
 ``/absscale/camera_info``. After each keyframe publishes, for the segment
 worth scaling (``core/sfm_outputs.best_segment``): ``/absscale/sparse_cloud`` (x y z rgb, SfM
 units), ``/absscale/keyframe_path`` (nav_msgs/Path, T_world_cam per keyframe),
-``/absscale/target_points`` (x y z object_id vertex_id n_obs angle_deg target_type) and
+``/absscale/target_points`` (x y z object_id vertex_id n_obs angle_deg target_type: the
+vertex landmarks seen under at least ``vertices.publish_min_angle_deg``) and
 ``/diagnostics``. A keyframe's features are detected on a worker thread as soon as its image
 arrives. Live (``qos: sensor_data``) the map is updated on a worker thread and keyframes do
 not queue (``core/sfm_live.py``; ``keyframes_skipped`` counts those replaced while waiting).

@@ -95,7 +95,7 @@ def map_messages(session: sfm_session.SfmSession, stamp_ns: int,
     m = sfm_outputs.best_segment(session.engine).map
     xyz, rgb = sfm_outputs.cloud(m, session.engine.K, session.cfg.cloud_cfg)
     stamps, poses = sfm_outputs.path(m)
-    tp = sfm_outputs.target_points(m)
+    tp = sfm_outputs.target_points(m, session.cfg.vertex_cfg.publish_min_angle_deg)
     return {'sparse_cloud': conversions.xyz_rgb_to_cloud_msg(xyz, rgb, stamp_ns, frame),
             'keyframe_path': conversions.poses_to_path_msg(poses, stamps, frame, stamp_ns),
             'target_points': conversions.xyz_rgb_to_cloud_msg(

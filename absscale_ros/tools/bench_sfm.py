@@ -25,7 +25,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from absscale_ros import bagio, conversions
-from absscale_ros.core import align, keyframes, sfm, sfm_outputs, sfm_vertices
+from absscale_ros.core import align, keyframes, sfm, sfm_outputs
 from absscale_ros.core import vertex_matching as vm
 from absscale_ros.core.types import CameraModel
 
@@ -237,11 +237,20 @@ def score(engine: sfm.IncrementalSfm, poses: dict[int, np.ndarray],
     sim_pose = align.pose_similarity(T, np.array([poses[i] for i in ids]))
     out['centre_rmse_pose_pct'] = 100.0 * align.rmse(
         align.apply(*sim_pose, T[:, :3, 3]), gt_c) / max(out['segment_m'], 1e-12)
-    points, true_pts, usable = _vertex_truth(m, truth, gt)
+    # Scored: the vertices the sfm node publishes (``sfm_outputs.published_vertices``); those
+    # it keeps unpublished (too little parallax) are counted and scored apart.
+    published = sfm_outputs.published_vertices(m, engine.cfg.vertex_cfg.publish_min_angle_deg)
+    points, true_pts, usable = _vertex_truth(m, truth, gt, published)
     out['vertices'] = len(points)
-    out['vertices_unique'] = len(sfm_vertices.targets(m)[0])
+    out['vertices_unique'] = len({m.landmarks[i].label for i in published})
     out['vertices_usable'] = int(np.sum(usable))
     out.update(vertex_identities(m, truth))
+    held = [i for i, lm in m.landmarks.items() if lm.label is not None and i not in published]
+    out['vertices_unpublished'] = len(held)
+    if held:
+        q = align.apply(*sim_pose, np.array([m.landmarks[i].point_world for i in held]))
+        out['vertex_err_unpublished_max_pct'] = 100.0 * float(max(
+            np.min(np.linalg.norm(verts - x, axis=1)) for x in q)) / extent_m
     for suffix, sim in (('', sim_pose), ('_centres', (s, R, t))):
         if not points:
             break
@@ -260,17 +269,16 @@ def score(engine: sfm.IncrementalSfm, poses: dict[int, np.ndarray],
     return out
 
 
-def _vertex_truth(m: Any, truth: dict[int, Any], gt: dict[str, Any]
+def _vertex_truth(m: Any, truth: dict[int, Any], gt: dict[str, Any], published: list[int]
                   ) -> tuple[list[np.ndarray], list[np.ndarray | None], list[bool]]:
     """
-    Each vertex landmark's position (SfM units), its true position (None for detected
-    vertices: scored against the nearest true vertex) and whether the scale node would use it
-    by default (>= 3 keyframes, >= 3 degrees of parallax).
+    Each published vertex landmark's position (SfM units), its true position (None for
+    detected vertices: scored against the nearest true vertex) and whether the scale node would
+    use it by default (>= 3 keyframes, >= 3 degrees of parallax).
     """
     points, true_pts, usable = [], [], []
-    for lm_id, lm in m.landmarks.items():
-        if lm.label is None:
-            continue
+    for lm_id in published:
+        lm = m.landmarks[lm_id]
         centres = np.array([m.keyframes[k].T_world_cam[:3, 3] for k in lm.obs_px])
         usable.append(len(lm.obs_px) >= 3 and
                       sfm_outputs.widest_angle_deg(lm.point_world, centres) >= 3.0)
@@ -303,7 +311,8 @@ def vertex_identities(m: Any, truth: dict[int, Any]) -> dict[str, int]:
     """
     With ground-truth vertices: landmarks whose observations are of more than one true corner
     (a mismatch), and landmarks beyond one per true corner (a corner that started a second
-    landmark), each by the corner the error figures score it against (``_corner``).
+    landmark), each by the corner the error figures score it against (``_corner``); of every
+    vertex landmark, published or not.
     """
     firsts, mixed = [], 0
     for lm_id, lm in m.landmarks.items():

@@ -12,7 +12,7 @@ import sys
 import numpy as np
 import pytest
 
-from absscale_ros.core import sfm, sfm_vertices
+from absscale_ros.core import sfm, sfm_outputs, sfm_vertices
 
 sys.path.insert(0, str(Path(__file__).parent))
 import sfm_scenes  # noqa: E402
@@ -101,3 +101,19 @@ def test_a_culled_observation_no_longer_links(cube_map, monkeypatch) -> None:
     _relink(engine, old, new, [(i, j)], monkeypatch)
     assert old.vertices.landmark_of[i] != lm_id  # a landmark of its own, if any
     assert new.vertices.landmark_of[j] != lm_id and new.kf_id not in m.landmarks[lm_id].obs_px
+
+
+def test_only_vertices_seen_under_enough_parallax_are_published(cube_map) -> None:
+    # The outdoor sample's corner seen from its last two keyframes only, 1.27 degrees apart,
+    # lay 0.53 % of the extent off: target_points leaves out what publish_min_angle_deg refuses.
+    engine, _ = cube_map
+    m = engine.current.map
+    angles = {i: sfm_outputs.vertex_angle_deg(m, i) for i, lm in m.landmarks.items()
+              if lm.label is not None}
+    assert engine.cfg.vertex_cfg.publish_min_angle_deg == 3.0  # the scale node's min_angle_deg
+    assert sfm_outputs.published_vertices(m, 3.0) == [i for i, a in angles.items() if a >= 3.0]
+    cut = float(np.median(list(angles.values())))
+    tp = sfm_outputs.target_points(m, cut)
+    assert len(tp.points) == sum(a >= cut for a in angles.values()) < len(angles)
+    assert (tp.angle_deg >= cut - 1e-4).all()
+    assert len(sfm_outputs.target_points(m).points) == len(angles)  # default: every vertex
