@@ -5,21 +5,15 @@ Every node of the pipeline that exists is started with its section of the config
 ``bag_replay`` steps the bag through them losslessly; the run ends when the bag is done and
 the graph has drained the last frame.
 """
-import ctypes
 from dataclasses import dataclass
 import importlib
-import json
+import importlib.util
 import os
 import resource
-from pathlib import Path
-import signal
-import subprocess
-import sys
-import tempfile
 import time
 from typing import Any, Callable
 
-from absscale_ros import params
+from absscale_ros import node_processes, params
 from absscale_ros.core.errors import AbsScaleError
 from absscale_ros.domains import DomainLease
 from absscale_ros.nodes import common
@@ -44,7 +38,8 @@ KEYFRAMES_TOPIC, KEYFRAME_PATH_TOPIC = '/absscale/keyframes', '/absscale/keyfram
 SFM_STATUS = 'sfm: reconstruction'  # its diagnostics count the keyframes a live SfM skipped
 DRAIN_LIMIT_S = 300.0  # after the bag: the longest wait for the graph to catch up
 STALLED_S = 10.0  # nothing moved this long: the graph is not catching up, stop waiting
-PR_SET_PDEATHSIG = 1  # linux/prctl.h
+# A split run's other processes (RunOptions.split), one per group; the rest stay in the runner.
+SPLIT_GROUPS = (('vertex_detector',), ('sfm', 'scale', 'dense'))
 # With the dense node on, it owns /scaled_cloud and the sparse metric cloud moves here.
 SPARSE_METRIC_TOPIC = '/absscale/sparse_cloud_metric'
 
@@ -77,6 +72,9 @@ class RunOptions:
     record: str | None = None  # MCAP file for every graph topic (not the bag's own)
     drain_s: float = 0.3
     processes: bool = False  # each pipeline node in its own process, over real DDS
+    # Offline, not --processes: the SfM and the nodes after it (BACK_NODES) in a second process,
+    # so they have a core of their own while this one decodes, detects and selects keyframes.
+    split: bool = True
 
 
 def dense_enabled(sections: dict[str, dict[str, Any]]) -> bool:
@@ -123,19 +121,37 @@ def _overrides(values: dict[str, Any]) -> list[Parameter]:
 
 # Runs in one process (benches) each get their own domain: the nodes of a finished run linger
 # in DDS discovery for a while and the lossless replay would wait for their acknowledgements.
-def _start_nodes(context: rclpy.Context, sections: dict[str, dict[str, Any]],
-                 live: bool) -> dict[str, Node]:
+def _node_values(name: str, sections: dict[str, dict[str, Any]], names: list[str],
+                 live: bool) -> dict[str, Any]:
+    """The parameters of pipeline node ``name`` in a run of the nodes ``names``."""
+    values = params.node_params(sections, name)
+    if name == 'scale' and dense_enabled(sections):
+        values['cloud_topic'] = SPARSE_METRIC_TOPIC
+    if name == 'keyframe_selector' and 'vertex_detector' not in names:
+        values['use_vertices'] = False  # no detector: frames alone decide
+    if live:
+        values['qos'] = 'sensor_data'  # nodes that have this parameter drop when behind
+    return values
+
+
+def start_nodes(context: rclpy.Context, sections: dict[str, dict[str, Any]],
+                live: bool, only: list[str] | None = None, runner: bool = True
+                ) -> dict[str, Node]:
+    """
+    Start the available pipeline nodes (those in ``only``, if given) in this process. In the
+    ``runner``'s own process the sfm maps each keyframe before it is acknowledged: on the
+    runner's one interpreter a queue would gain nothing.
+    """
+    names = [name for name, _ in available_modules(sections)]
+    classes = {name: (module, cls) for name, module, cls in PIPELINE}
     nodes: dict[str, Node] = {}
-    found = available_nodes(sections)
-    for name, cls in found:
-        values = params.node_params(sections, name)
-        if name == 'scale' and dense_enabled(sections):
-            values['cloud_topic'] = SPARSE_METRIC_TOPIC
-        if name == 'keyframe_selector' and 'vertex_detector' not in dict(found):
-            values['use_vertices'] = False  # no detector: frames alone decide
-        if live:
-            values['qos'] = 'sensor_data'  # nodes that have this parameter drop when behind
-        nodes[name] = cls(context=context, parameter_overrides=_overrides(values))
+    for name in names:
+        if only is None or name in only:
+            cls = getattr(importlib.import_module(classes[name][0]), classes[name][1])
+            values = _node_values(name, sections, names, live)
+            if runner and name == 'sfm':
+                values['queue_keyframes'] = 0
+            nodes[name] = cls(context=context, parameter_overrides=_overrides(values))
     return nodes
 
 
@@ -161,28 +177,41 @@ def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
     nodes: dict[str, Node] = {}
     monitor = executor = children = None
     try:
+        names = [name for name, _ in available_modules(sections)]
+        domain = context.get_domain_id()
         if options.processes:
-            children = _NodeProcesses(config_path, context.get_domain_id(), options.live)
+            children = node_processes.NodeProcesses(config_path, domain, options.live,
+                                                    [[name] for name in names], own_main=True)
         else:
-            nodes = _start_nodes(context, sections, options.live)
+            groups = [[n for n in names if n in group] for group in SPLIT_GROUPS] \
+                if options.split and not options.live else []
+            groups = [g for g in groups if g]
+            if groups:  # started first: their processes import while this one does
+                children = node_processes.NodeProcesses(config_path, domain, False, groups)
+            nodes = start_nodes(context, sections, options.live,
+                                [n for n in names if not any(n in g for g in groups)])
         monitor = GraphMonitorNode(context=context)
         monitor.discover()  # the pipeline's topics exist now: count them from the first message
         if options.record:
             monitor.record(options.record)
         replay_params = params.node_params(sections, 'bag_replay')
-        names = children.names if children is not None else list(nodes)
         replay_params.update(bag=str(bag), expect_nodes=','.join(names), mode=options.mode,
                              rate=options.rate, observer=monitor.get_name(),
                              observer_images=bool(options.record))
         if children is not None:  # discovery across processes takes longer than in one
             replay_params['startup_timeout_s'] = max(30.0, replay_params.get(
                 'startup_timeout_s', 5.0))
-            # Matching across processes can lag discovery by seconds on a busy machine: a
-            # frame sent before a node's input matched is lost (seen as one step timeout).
-            replay_params['settle_s'] = 5.0
+            if options.processes:
+                # Matching across processes can lag discovery by seconds on a busy machine: a
+                # frame sent before a node's input matched is lost (seen as one step timeout).
+                replay_params['settle_s'] = 5.0
         if options.live:
             replay_params.update(mode='rate', qos='sensor_data')
         replay = BagReplayNode(context=context, parameter_overrides=_overrides(replay_params))
+        if children is not None and not options.processes:
+            # Instead of a settle: every endpoint on either side matched to all it discovered.
+            local = [*nodes.values(), monitor, replay]
+            replay.gate = lambda: children.matched(local)
         for topic, msgtype in replay.topic_types().items():
             monitor.watch(topic, msgtype, recorded=False, best_effort=options.live)
         # One thread: GTSAM holds the GIL, so threads would not overlap the stages and rclpy's
@@ -196,8 +225,10 @@ def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
             executor.add_node(node)
         memory: list[list[float]] = []
         wall_s = _spin(executor, replay, monitor, nodes, options, on_progress, memory)
-        node_reports = children.stop() if children is not None else \
-            {name: _node_report(node) for name, node in nodes.items()}
+        node_reports = {name: node_report(node) for name, node in nodes.items()}
+        if children is not None:
+            node_reports.update(children.stop())
+        node_reports = {name: node_reports[name] for name in names if name in node_reports}
         report = {
             'bag': str(bag), 'config': str(config_path), 'wall_time_s': round(wall_s, 3),
             'replay': {'mode': replay_params['mode'], 'live': options.live,
@@ -233,63 +264,6 @@ def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
         rclpy.try_shutdown(context=context)
         if lease is not None:
             lease.release()
-
-
-class _NodeProcesses:
-    """The pipeline nodes as separate processes on the runner's DDS domain (``--processes``)."""
-
-    def __init__(self, config_path: Path, domain_id: int, live: bool) -> None:
-        self._dir = tempfile.TemporaryDirectory(prefix='absscale_nodes_')
-        env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))  # with run_graph's DDS profile
-        sections = params.load_yaml(config_path)
-        found = dict(available_modules(sections))
-        self.names = list(found)
-        self._procs: dict[str, subprocess.Popen] = {}
-        for name, module in found.items():
-            args = ['--ros-args', '--params-file', str(config_path)]
-            if name == 'scale' and dense_enabled(sections):
-                args += ['-p', f'cloud_topic:={SPARSE_METRIC_TOPIC}']
-            if name == 'keyframe_selector' and 'vertex_detector' not in found:
-                args += ['-p', 'use_vertices:=false']
-            if live:
-                args += ['-p', 'qos:=sensor_data']
-            code = f'from {module} import main; main()'
-            self._procs[name] = subprocess.Popen(
-                [sys.executable, '-c', code, *args],
-                env=dict(env, ABSSCALE_REPORT=str(Path(self._dir.name) / f'{name}.json')),
-                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, preexec_fn=_die_with_parent)
-        self._reports: dict[str, Any] | None = None
-        self.cpu_s: dict[str, float | None] = {}  # CPU time of each node's process
-
-    def stop(self) -> dict[str, Any]:
-        """Interrupt every node (they write their reports) and collect the reports."""
-        if self._reports is not None:
-            return self._reports
-        for proc in self._procs.values():
-            proc.send_signal(signal.SIGINT)
-        reports: dict[str, Any] = {}
-        for name, proc in self._procs.items():
-            try:
-                _, err = proc.communicate(timeout=30)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                _, err = proc.communicate()
-            path = Path(self._dir.name) / f'{name}.json'
-            reports[name] = json.loads(path.read_text()) if path.exists() else {
-                'error': f'exit {proc.returncode}: {err.decode(errors="replace")[-500:]}'}
-            self.cpu_s[name] = reports[name].pop('process_cpu_s', None)
-        self._dir.cleanup()
-        self._reports = reports
-        return reports
-
-
-def _die_with_parent() -> None:
-    """
-    In a node process before it starts: end it when the runner dies. A runner killed by
-    SIGTERM or SIGKILL runs no cleanup, and its nodes would go on replaying into nothing.
-    """
-    libc = ctypes.CDLL(None, use_errno=True)
-    libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
 def _spin(executor: Any, replay: BagReplayNode, monitor: GraphMonitorNode,
@@ -328,13 +302,14 @@ def _resident_mb() -> float:
 def _progress(replay: BagReplayNode, nodes: dict[str, Node], monitor: GraphMonitorNode,
               elapsed_s: float) -> Progress:
     selector, scaler = nodes.get('keyframe_selector'), nodes.get('scale')
-    if selector is None:  # --processes: the nodes say it in their diagnostics
-        return Progress(replay.published, replay.total, replay.steps,
-                        *_progress_from_diagnostics(monitor.diagnostics), elapsed_s)
-    estimate = getattr(scaler, 'estimate', None)
-    return Progress(replay.published, replay.total, replay.steps,
-                    len(getattr(selector, 'keyframe_stamps_ns', ())),
-                    None if estimate is None else (estimate.factor, estimate.sigma), elapsed_s)
+    # Nodes in other processes say it in their diagnostics.
+    keyframes, claimed = _progress_from_diagnostics(monitor.diagnostics)
+    if selector is not None:
+        keyframes = len(getattr(selector, 'keyframe_stamps_ns', ()))
+    if scaler is not None:
+        estimate = getattr(scaler, 'estimate', None)
+        claimed = None if estimate is None else (estimate.factor, estimate.sigma)
+    return Progress(replay.published, replay.total, replay.steps, keyframes, claimed, elapsed_s)
 
 
 def _progress_from_diagnostics(diagnostics: dict[str, dict[str, Any]]
@@ -469,6 +444,6 @@ def _sfm_behind(monitor: GraphMonitorNode) -> bool:
     return counts.get(KEYFRAMES_TOPIC, 0) > answered + skipped and answered > 0
 
 
-def _node_report(node: Node) -> dict[str, Any]:
+def node_report(node: Node) -> dict[str, Any]:
     report = getattr(node, 'report', None)
     return report() if callable(report) else {}

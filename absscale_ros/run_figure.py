@@ -37,6 +37,17 @@ def draw_run(path: Path, detections: list[tuple[int, int]], history: list[dict[s
     plt.close(fig)
 
 
+def main() -> None:
+    """Draw from ``draw_run``'s arguments pickled on stdin (``outputs`` runs this apart), the
+    camera orientations (``quats``, xyzw) given instead of ``up``."""
+    import pickle
+    import sys
+    args = pickle.loads(sys.stdin.buffer.read())
+    quats = args.pop('quats')
+    args['up'] = up_from_cameras(quats) if quats is not None and len(quats) else None
+    draw_run(**args)
+
+
 def up_from_cameras(quats_xyzw: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     """
     The mean "up" of handheld cameras: minus their optical y axis (y points down in the image).

@@ -52,21 +52,24 @@ def _deterministic(report: dict) -> dict:
 
 
 def test_processes_give_the_same_result_as_one_process(tmp_path: Path) -> None:
-    """--processes: every node its own process, over real DDS on loopback."""
+    """--processes: every node its own process, over real DDS on loopback; the default
+    (detector and sfm in processes of their own) too."""
     bag = tmp_path / 'cam.mcap'
     write_camera_bag(bag, frames=10, size=(640, 360))
     reports = []
-    for extra in ([], ['--processes']):
-        out = tmp_path / ('procs' if extra else 'one')
+    for extra in (['--one-process'], ['--processes'], []):
+        out = tmp_path / (extra[0][2:] if extra else 'default')
         done = subprocess.run([sys.executable, '-m', 'absscale_ros.cli', 'run', str(bag),
                                '--out', str(out), '--quiet', *extra],
                               capture_output=True, text=True, timeout=300)
         assert done.returncode == 1 and 'Traceback' not in done.stderr, done.stderr[-3000:]
         reports.append(json.loads((out / 'report.json').read_text()))
         warnings = [line for line in done.stderr.splitlines() if 'WARN' in line]
-    one, procs = reports
-    assert procs['replay']['step_timeouts'] == 0, warnings  # which frame, which node
-    assert _deterministic(procs) == _deterministic(one)
+        errors = {n: r['error'] for n, r in reports[-1]['nodes'].items() if 'error' in r}
+        assert not errors, (extra, errors)  # a node process that wrote no report
+        assert reports[-1]['replay']['step_timeouts'] == 0, warnings  # which frame, which node
+    one, procs, default = reports
+    assert _deterministic(procs) == _deterministic(one) == _deterministic(default)
 
 
 def _node_children(pid: int) -> list[int]:

@@ -5,7 +5,8 @@ from absscale_ros import params
 from absscale_ros.core import sfm
 import pytest
 
-NODE_ONLY = {'pair_depth', 'seed', 'frame_id', 'use_tracked_steps', 'qos'}  # not SfmConfig's
+NODE_ONLY = {'pair_depth', 'seed', 'frame_id', 'use_tracked_steps', 'qos',
+             'queue_keyframes'}  # not SfmConfig's
 
 
 def _names(cfg: sfm.SfmConfig) -> set[str]:

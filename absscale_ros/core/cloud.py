@@ -14,21 +14,33 @@ FloatArray = npt.NDArray[np.float64]
 def write_ply(path: Path, points: FloatArray, colors: npt.NDArray[np.uint8] | None = None,
               normals: FloatArray | None = None) -> None:
     """
-    Write a binary PLY readable by CloudCompare, MeshLab and Open3D.
+    Write a binary PLY readable by CloudCompare, MeshLab and Open3D: the bytes Open3D's own
+    writer gives, without importing Open3D (2-5 s at the end of every run).
 
     :param points: (N, 3) positions (metres once scaled).
     :param colors: (N, 3) uint8 RGB, or None.
     :param normals: (N, 3) unit normals, or None.
     """
-    import open3d as o3d
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, np.float64)))
-    if colors is not None and len(colors):
-        cloud.colors = o3d.utility.Vector3dVector(np.asarray(colors, np.float64) / 255.0)
+    fields = [(a, '<f8') for a in 'xyz']
     if normals is not None and len(normals):
-        cloud.normals = o3d.utility.Vector3dVector(np.asarray(normals, np.float64))
+        fields += [(f'n{a}', '<f8') for a in 'xyz']
+    if colors is not None and len(colors):
+        fields += [(c, 'u1') for c in ('red', 'green', 'blue')]
+    rows = np.empty(len(points), np.dtype(fields))
+    for i, a in enumerate('xyz'):
+        rows[a] = np.asarray(points, np.float64)[:, i]
+        if normals is not None and len(normals):
+            rows[f'n{a}'] = np.asarray(normals, np.float64)[:, i]
+    if colors is not None and len(colors):
+        for i, c in enumerate(('red', 'green', 'blue')):
+            rows[c] = np.asarray(colors, np.uint8)[:, i]
+    header = ['ply', 'format binary_little_endian 1.0', 'comment Created by Open3D',
+              f'element vertex {len(rows)}']
+    header += [f'property {"double" if t == "<f8" else "uchar"} {n}' for n, t in fields]
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    if not o3d.io.write_point_cloud(str(path), cloud, write_ascii=False):
-        raise OSError(f'{path}: Open3D could not write the point cloud')
+    with open(path, 'wb') as f:
+        f.write(('\n'.join(header + ['end_header']) + '\n').encode())
+        f.write(rows.tobytes())
 
 
 def read_ply(path: Path) -> tuple[FloatArray, npt.NDArray[np.uint8] | None]:

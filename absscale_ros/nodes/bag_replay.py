@@ -6,7 +6,7 @@ subscribers), ``step`` (lossless: the next stepped message goes out only when ev
 acknowledging node downstream has handled the previous one; see core/replay.py).
 """
 import time
-from typing import Any
+from typing import Any, Callable
 
 from absscale_ros import bagio, conversions
 from absscale_ros.core import replay
@@ -59,6 +59,9 @@ class BagReplayNode(Node):
         self._cursor: bagio.ReplayCursor | None = None
         self._last_progress = self._created = time.monotonic()
         self._ready_checked = -READY_PERIOD_S
+        # The runner's own last condition (absscale run across processes: every endpoint
+        # matched), checked once the graph is known.
+        self.gate: Callable[[], bool] = lambda: True
         self._create_ack_sub()
         self._timer = self.create_timer(TICK_S[self._p['mode']], self._tick)
 
@@ -121,7 +124,8 @@ class BagReplayNode(Node):
         ackers = {i.node_name for i in self.get_publishers_info_by_topic(common.ACK_TOPIC)}
         missing = set(_csv(self._p['expect_nodes'])) - ackers
         unheard = [t for t, pub in self._pubs.items() if pub.get_subscription_count() == 0]
-        if not missing and not unheard and self._graph_known() and self._observed():
+        if not missing and not unheard and self._graph_known() and self._observed() and \
+                self.gate():
             # Across processes a publisher may be matched to its subscribers a moment after
             # discovery names them; a message sent before would be lost.
             if self._known_since is None:

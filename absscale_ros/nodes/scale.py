@@ -30,7 +30,7 @@ class ScaleNode(Node):
         p = {x.name: x.value for x in self.declare_parameters('', [
             ('sheet', 'letter'), ('sheet_size_m', [0.0, 0.0]), ('cube_edge_m', 0.8),
             ('frame_id', 'map'), ('min_change', 0.001), ('require_path', False),
-            ('cloud_topic', '/scaled_cloud'), ('qos', 'reliable')])}
+            ('cloud_topic', '/scaled_cloud'), ('qos', 'reliable'), ('in_order', False)])}
         custom = tuple(p['sheet_size_m']) if min(p['sheet_size_m']) > 0 else None
         # 'auto': letter or A4, whichever the reconstructed corners fit (a tie claims nothing).
         sizes = targets.sheet_sizes_m(p['sheet'], custom)
@@ -54,11 +54,39 @@ class ScaleNode(Node):
         self._estimated_ns: int | None = None
         self._why_not = 'no target points yet'
         # Live, only the newest of each: a backlog would only delay the newest keyframe.
-        qos = common.live_input(1) if p['qos'] == common.LIVE else common.RELIABLE
-        for topic, cls, cb in (('/absscale/target_points', PointCloud2, self._on_targets),
-                               ('/absscale/sparse_cloud', PointCloud2, self._on_cloud),
-                               ('/absscale/keyframe_path', Path, self._on_path)):
-            self.create_subscription(cls, topic, lambda m, t=topic, f=cb: f(m, t), qos)
+        live = p['qos'] == common.LIVE
+        qos = common.live_input(1) if live else common.RELIABLE
+        ordered = p['in_order'] and not live
+        self._handlers = {'/absscale/sparse_cloud': self._on_cloud,  # the sfm's order
+                          '/absscale/keyframe_path': self._on_path,
+                          '/absscale/target_points': self._on_targets}
+        self._arrived: dict[int, dict[str, Any]] = {}  # offline: stamp -> topic -> message
+        for topic, cls in (('/absscale/target_points', PointCloud2),
+                           ('/absscale/sparse_cloud', PointCloud2),
+                           ('/absscale/keyframe_path', Path)):
+            self.create_subscription(cls, topic, (lambda m, t=topic: self._handlers[t](m, t))
+                                     if not ordered else
+                                     (lambda m, t=topic: self._in_order(m, t)),
+                                     qos)
+
+    def _in_order(self, msg: Any, topic: str) -> None:
+        """
+        Offline with ``in_order`` (the sfm publishes all three per keyframe): handle a
+        keyframe's three messages once all have come, in the order the sfm publishes them.
+        Across processes they may arrive in another order (an sfm that queues keyframes
+        publishes while this node works), and the cloud last published, scaled by the factor
+        of the message before, would depend on it. A keyframe still missing one when a newer
+        one is complete goes first with what it has.
+        """
+        stamp = conversions.stamp_to_ns(msg.header.stamp)
+        self._arrived.setdefault(stamp, {})[topic] = msg
+        if len(self._arrived[stamp]) < len(self._handlers):
+            return
+        for older in sorted(s for s in self._arrived if s <= stamp):
+            got = self._arrived.pop(older)
+            for t, handle in self._handlers.items():
+                if t in got:
+                    handle(got[t], t)
 
     def _on_targets(self, msg: PointCloud2, topic: str) -> None:
         self._targets = msg

@@ -16,7 +16,8 @@ Parameters: the scalars of ``SfmConfig`` and its stages as ``features.*``, ``two
 ``graph.*``, ``vertices.*``, ``local_map.*``, ``cloud.*`` (which landmarks are published),
 ``qos`` (``reliable``, or ``sensor_data`` live).
 """
-from concurrent.futures import ThreadPoolExecutor
+from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor, wait
 from dataclasses import fields, is_dataclass, replace
 import time
 from typing import Any
@@ -44,7 +45,7 @@ class SfmNode(Node):
                        for prefix, field in sfm.PARAM_PREFIXES.items()})
         p = {x.name: x.value for x in self.declare_parameters('', [
             ('pair_depth', 10), ('seed', 0), ('frame_id', 'map'), ('use_tracked_steps', True),
-            ('qos', 'reliable')])}
+            ('qos', 'reliable'), ('queue_keyframes', 0)])}
         self.session = sfm_session.SfmSession(replace(cfg, **values), p['seed'], time.perf_counter)
         self._frame, self._camera = p['frame_id'], None
         self._pubs = {name: self.create_publisher(cls, f'/absscale/{name}', common.RELIABLE)
@@ -58,6 +59,12 @@ class SfmNode(Node):
         self._detector = ThreadPoolExecutor(1, 'sfm_features')
         self._prefetch = sfm_live.FeaturePrefetch(self._detector.submit, 2 * p['pair_depth'] + 2)
         self._updater = ThreadPoolExecutor(1, 'sfm_update') if p['qos'] == common.LIVE else None
+        # Offline, queued: keyframes are acknowledged as they are queued and added in order on
+        # a worker, so a lossless replay feeds the nodes before the sfm (in another process)
+        # meanwhile; at most ``queue_keyframes`` wait (then the callback waits for the oldest).
+        self._queued: deque['Future[list[str]]'] = deque()
+        self._queue_depth = p['queue_keyframes'] if self._updater is None else 0
+        self._queue = ThreadPoolExecutor(1, 'sfm_queue') if self._queue_depth > 0 else None
         self.live: sfm_live.LiveUpdates[Item] | None = None if self._updater is None else \
             sfm_live.LiveUpdates(self._updater.submit, time.monotonic_ns,
                                  lambda item: self._process(*item), self.session.adjust_if_due,
@@ -73,8 +80,9 @@ class SfmNode(Node):
             self.get_logger().warning(f'bad camera_info: {err}', throttle_duration_sec=5.0)
 
     def destroy_node(self) -> None:
-        if self._updater is not None:
-            self._updater.shutdown(wait=True, cancel_futures=True)
+        for worker in (self._updater, self._queue):
+            if worker is not None:
+                worker.shutdown(wait=True, cancel_futures=True)
         self._detector.shutdown(wait=False, cancel_futures=True)
         super().destroy_node()
 
@@ -91,6 +99,12 @@ class SfmNode(Node):
 
     def _handle(self, item: Item) -> list[str] | None:
         """A paired keyframe: processed now (its outputs), or handed to the live worker."""
+        if self._queue is not None:
+            while self._queued and (self._queued[0].done() or
+                                    len(self._queued) >= self._queue_depth):
+                self._queued.popleft().result()  # an update's exception is raised here
+            self._queued.append(self._queue.submit(self._process, *item))
+            return []  # taken: the replay goes on; what it publishes is acknowledged downstream
         if self.live is None:
             return self._process(*item)
         self.live.offer(conversions.stamp_to_ns(item[0].header.stamp), item)
@@ -128,6 +142,8 @@ class SfmNode(Node):
 
     def report(self, full_rms: bool = True) -> dict[str, Any]:
         """See ``SfmSession.report``; live, with the skipped keyframes and the timeline."""
+        if full_rms:  # the final report: after the queued updates (called from outside them)
+            wait(list(self._queued))
         live = self.live
         return self.session.report(full_rms, live.skipped if live else 0, live and {
             'timeline_ns': list(live.timeline_ns),

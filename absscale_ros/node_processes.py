@@ -1,0 +1,208 @@
+"""
+Pipeline nodes of ``absscale run`` in processes of their own: one per node (``--processes``)
+or groups of nodes (the default split run), on the runner's DDS domain. Instead of a fixed
+settle, a split run starts once every endpoint on either side is matched to all that
+discovery knows of (``NodeProcesses.matched``).
+"""
+import ctypes
+import json
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from typing import Any
+
+from absscale_ros import params
+from absscale_ros.core.errors import AbsScaleError
+from absscale_ros.nodes import common
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
+class NodeProcesses:
+    """
+    Pipeline nodes in processes of their own on the runner's DDS domain: one per node
+    (``--processes``) or several nodes in one (``groups``, see ``group_main``).
+    """
+
+    def __init__(self, config_path: Path, domain_id: int, live: bool,
+                 groups: list[list[str]], own_main: bool = False) -> None:
+        from absscale_ros import graph
+        self._dir = tempfile.TemporaryDirectory(prefix='absscale_nodes_')
+        env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))  # with run_graph's DDS profile
+        sections = params.load_yaml(config_path)
+        found = dict(graph.available_modules(sections))
+        self.groups, self._own_main = groups, own_main
+        self.names = [name for group in groups for name in group]
+        self._procs: dict[str, subprocess.Popen] = {}
+        self._expected: tuple[int, str] | None = None  # (version, counts) sent to the groups
+        for group in groups:
+            label = '+'.join(group)
+            if own_main:  # --processes: each node as its own console script runs it
+                name = group[0]
+                args = ['--ros-args', '--params-file', str(config_path)]
+                if name == 'scale' and graph.dense_enabled(sections):
+                    args += ['-p', f'cloud_topic:={graph.SPARSE_METRIC_TOPIC}']
+                if name == 'keyframe_selector' and 'vertex_detector' not in found:
+                    args += ['-p', 'use_vertices:=false']
+                if live:
+                    args += ['-p', 'qos:=sensor_data']
+                code = f'from {found[name]} import main; main()'
+            else:
+                args = [str(config_path), ','.join(group), 'live' if live else 'offline',
+                        self._dir.name]
+                code = 'from absscale_ros.node_processes import group_main; group_main()'
+            # Its log goes to a file: a pipe nobody reads during a long run would fill and
+            # stop the node.
+            with open(Path(self._dir.name) / f'{label}.log', 'wb') as log:
+                self._procs[label] = subprocess.Popen(
+                    [sys.executable, '-c', code, *args],
+                    env=dict(env, ABSSCALE_REPORT=str(Path(self._dir.name) / f'{label}.json')),
+                    stdout=subprocess.DEVNULL, stderr=log, preexec_fn=_die_with_parent)
+        self._reports: dict[str, Any] | None = None
+        self.cpu_s: dict[str, float | None] = {}  # CPU time of each node process
+
+    def matched(self, local: list[Node]) -> bool:
+        """
+        Whether every endpoint of ``local`` (this process's nodes) and of the node groups is
+        matched to every peer discovery knows of: a message sent before its reader matched
+        would be lost. The groups are told the counts this process sees and answer.
+        """
+        for label, proc in self._procs.items():
+            if proc.poll() is not None:  # it died starting: its reason, not a silent wait
+                raise AbsScaleError(f'node process {label} exited with {proc.returncode}: '
+                                    f'{self._log(label)[-1000:]}')
+        counts = _endpoint_counts(local[0])
+        if self._expected is None or self._expected[1] != counts:
+            version = 1 if self._expected is None else self._expected[0] + 1
+            self._expected = (version, counts)
+            tmp = Path(self._dir.name) / 'expect.tmp'
+            tmp.write_text(json.dumps({'version': version, **json.loads(counts)}))
+            tmp.replace(Path(self._dir.name) / 'expect.json')  # never read half written
+            return False
+        answered = all(_read(Path(self._dir.name) / f'{"+".join(g)}.ready') ==
+                       str(self._expected[0]) for g in self.groups)
+        return answered and not _unmatched(local, json.loads(counts))
+
+    def _log(self, label: str) -> str:
+        try:
+            return (Path(self._dir.name) / f'{label}.log').read_bytes().decode(
+                errors='replace').strip()
+        except OSError:
+            return ''
+
+    def stop(self) -> dict[str, Any]:
+        """Interrupt every node (they write their reports) and collect the reports."""
+        if self._reports is not None:
+            return self._reports
+        for proc in self._procs.values():
+            proc.send_signal(signal.SIGINT)
+        reports: dict[str, Any] = {}
+        for group in self.groups:
+            label = '+'.join(group)
+            proc = self._procs[label]
+            try:
+                proc.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+            path = Path(self._dir.name) / f'{label}.json'
+            found = json.loads(path.read_text()) if path.exists() else {}
+            if self._own_main:
+                found = {label: found} if found else {}
+            for name in group:
+                reports[name] = found.get(name) or {
+                    'error': f'exit {proc.returncode}: {self._log(label)[-500:]}'}
+                cpu = reports[name].pop('process_cpu_s', None)
+                if cpu is not None:
+                    self.cpu_s[label] = cpu
+        self._dir.cleanup()
+        self._reports = reports
+        return reports
+
+
+def _read(path: Path) -> str | None:
+    try:
+        return path.read_text()
+    except OSError:
+        return None
+
+
+# ROS's own topics carry nothing a run needs.
+UNCHECKED_TOPICS = ('/rosout', '/parameter_events')
+
+
+def _endpoint_counts(node: Node) -> str:
+    """JSON {'pubs': {topic: publishers}, 'subs': {topic: subscribers}} discovery knows."""
+    topics = [t for t, _ in node.get_topic_names_and_types() if t not in UNCHECKED_TOPICS]
+    return json.dumps({'pubs': {t: node.count_publishers(t) for t in topics},
+                       'subs': {t: node.count_subscribers(t) for t in topics}}, sort_keys=True)
+
+
+def _unmatched(nodes: list[Node], counts: dict[str, dict[str, int]]) -> list[str]:
+    """The topics of ``nodes`` whose publishers or subscriptions matched fewer peers than
+    ``counts`` (from ``_endpoint_counts``) says exist."""
+    out = []
+    for node in nodes:
+        for pub in node.publishers:
+            if pub.get_subscription_count() < counts['subs'].get(pub.topic_name, 0):
+                out.append(f'{node.get_name()} -> {pub.topic_name}')
+        for sub in node.subscriptions:
+            if sub.get_publisher_count() < counts['pubs'].get(sub.topic_name, 0):
+                out.append(f'{node.get_name()} <- {sub.topic_name}')
+    return out
+
+
+def group_main() -> None:
+    """
+    A node process of a split run holding several pipeline nodes, on one executor.
+
+    Arguments: config path, node names (comma-separated), ``live`` or ``offline``, and the
+    runner's folder, where it answers ``NodeProcesses.matched`` and leaves its reports.
+    """
+    from absscale_ros import graph
+    config, names, live, folder = sys.argv[1], sys.argv[2].split(','), sys.argv[3], sys.argv[4]
+    common.keep_freed_memory()
+    context = rclpy.Context()
+    rclpy.init(context=context, args=[])  # ROS_DOMAIN_ID from the runner
+    nodes = graph.start_nodes(context, params.load_yaml(Path(config)), live == 'live', names,
+                              runner=False)
+    executor = common.single_threaded_executor(context)
+    for node in nodes.values():
+        executor.add_node(node)
+    answered = None
+    label = Path(folder) / f'{"+".join(names)}.ready'
+    try:
+        while context.ok():
+            executor.spin_once(timeout_sec=0.02)
+            expect = _read(Path(folder) / 'expect.json')
+            if expect and expect != answered:
+                counts = json.loads(expect)
+                if not _unmatched(list(nodes.values()), counts):
+                    answered = expect
+                    label.write_text(str(counts['version']))
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        reports = {name: graph.node_report(node) for name, node in nodes.items()}
+        reports[names[0]]['process_cpu_s'] = round(time.process_time(), 2)
+        Path(os.environ['ABSSCALE_REPORT']).write_text(json.dumps(reports, default=str))
+        executor.shutdown()
+        for node in nodes.values():
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)
+
+
+def _die_with_parent() -> None:
+    """
+    In a node process before it starts: end it when the runner dies. A runner killed by
+    SIGTERM or SIGKILL runs no cleanup, and its nodes would go on replaying into nothing.
+    """
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
