@@ -9,7 +9,8 @@ then refined on the full-resolution image: edge points where the whiteness drops
 side (sub-pixel, on intensity profiles), a robust line fit, corners as intersections of the
 refined lines. A candidate is kept when every side is backed by image gradient and the
 rectangle it implies has the configured aspect ratio. When no whole sheet is found, five-sided
-regions are tried as a sheet with one corner hidden (``sheet_partial``, ``min_seen``).
+regions are tried as a sheet with one corner hidden (``sheet_partial``, ``min_seen``), also
+when an object on the corner cuts the sheet in two (``sheet_split``).
 """
 from dataclasses import dataclass
 from typing import Callable
@@ -19,7 +20,7 @@ import numpy as np
 import numpy.typing as npt
 
 from absscale_ros.core import (lines, quads, sheet_candidates, sheet_checks, sheet_partial,
-                               sheet_stub, sides, targets)
+                               sheet_split, sheet_stub, sides, targets)
 
 Array = npt.NDArray[np.float64]
 FIRST_PASS_SUPPORT = 0.25  # a side less supported after the widest refinement pass: no sheet
@@ -33,6 +34,9 @@ BLUR_RAMP_PX = 8.0  # a ramp this wide (25-75 %) doubles the corner noise the as
 BLUR_ASPECT_CAP = 2.0  # times ``aspect_tol``: the largest aspect tolerance of a blurred sheet
 LINE_SEGMENTS = 40  # segment lines added to the Hough peaks of the line hypotheses (``quads``)
 SMALL_INSET_PX = 2.0  # work px a region may reach beyond a refined too-small sheet (rough outline)
+# of ``min_seen``: a part the occluder cut off is a small region, whose rough outline falls
+# short of the side it shows by a work pixel or two (the refined sides are exact)
+SPLIT_SEEN = 0.5
 STUB_MAX_HYPS = 8  # stub hypotheses refined per frame at most (whitest, longest sides first)
 
 
@@ -94,6 +98,10 @@ class SheetConfig:
     :param stub_px: a sheet whose hidden corner covers nearly all of one side is recovered
         from the camera intrinsics when that side shows an edge over this many px next to
         its seen corner (``sheet_stub``; 0 turns it off).
+    :param split_gap: a region may be joined with a small white region at most this many
+        times its size (square root of its area) away, for the hidden-corner path: a box on
+        a sheet's corner, seen from low, cuts the sheet in two (``sheet_split``; 0 turns it
+        off).
     :param blur_band_frac: when nothing else is found, rough quadrilaterals are retried as a
         motion-blurred sheet, each side searched this fraction of the shorter side either
         side (``_accept_blurred``; 0 turns it off).
@@ -129,6 +137,7 @@ class SheetConfig:
     ridge_ratio: float = 0.3
     min_seen: float = 0.4
     stub_px: float = 8.0
+    split_gap: float = 2.0
     blur_band_frac: float = 0.4
 
     def __post_init__(self) -> None:
@@ -249,7 +258,8 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
                           dist)
     if not found:
         hidden = [r for r in cands.white_regions if not _whole_small(r[0], small, scale)]
-        _accept_hidden(image_bgr, hidden, scale, band, cfg, K, found, dist)
+        _accept_hidden(image_bgr, hidden, scale, band, cfg, K, found, dist,
+                       cands.split_regions)
     if not found and cfg.blur_band_frac > 0.0:
         _accept_blurred(image_bgr, unfound, band, cfg, K, found, dist)
     found.sort(key=lambda f: -f[0])
@@ -279,8 +289,9 @@ def _line_candidates(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig
     return [((q + 0.5) / scale - 0.5, max(6.0, 3.0 / scale)) for q in kept]
 
 
-# A sheet found: (score, (4, 2) corners, outline of the seen part, (4,) vertex scores or None).
-Found = tuple[float, Array, Array, Array | None]
+# A sheet found: (score, (4, 2) corners, outline of the seen part (or a tuple of outlines of
+# its parts), (4,) vertex scores or None).
+Found = tuple[float, Array, Array | tuple[Array, ...], Array | None]
 Refined = sides.Refined
 # and the seen outline (and, from a stub, (4,) vertex score factors)
 Refined6 = tuple[Array, ...]
@@ -403,9 +414,11 @@ def _blur_alike(ramps: Array) -> bool:
 
 def _accept_hidden(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candidates.Region],
                    scale: float, band: float, cfg: SheetConfig, K: Array | None,
-                   found: list[Found], dist: Array | None) -> None:
+                   found: list[Found], dist: Array | None,
+                   split: list[sheet_candidates.Region] | None = None) -> None:
     """
-    The hidden-corner paths: five-sided regions (``sheet_partial``, when ``cfg.min_seen`` < 1),
+    The hidden-corner paths: five-sided regions (``sheet_partial``, when ``cfg.min_seen`` < 1;
+    also of the ``split`` regions, a region joined with a part an occluder cut off),
     then, when they give no sheet, a stub (``sheet_stub``, ``cfg.stub_px`` > 0). Both sets of
     hypotheses are refined in one ``_accept_partial`` call: a frame without a sheet tries both,
     and one call per pass costs about a millisecond less than two.
@@ -425,6 +438,23 @@ def _accept_hidden(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candida
             rough_aspect=False, checked=sheet_stub.CHECKED,
             screen=lambda hyp, out: sheet_stub.finish(
                 hyp, out, band, K_, aspect, sheet_stub.SCREEN_SLACK) is not None))
+    # Then the outlines the paths above did not try (only where they find nothing), the
+    # hidden corner then covered by something that is neither the sheet nor its surface.
+    if cfg.min_seen < 1.0:
+        pents = [(p + 0.5) / scale - 0.5 for p in sheet_candidates.pentagons(regions, True)]
+        paths.append(_Hidden([sheet_partial.hypotheses(p, cfg.min_seen) for p in pents],
+                             lambda hyp, out: sheet_partial.finish(hyp, out, band),
+                             strict_cover=True))
+    if cfg.min_seen < 1.0 and cfg.split_gap > 0.0 and split:
+        # (not merged like the masks' outlines: a rough corner a pixel off moves the hidden
+        # corner's seen fractions across ``min_seen``)
+        pents = [(p + 0.5) / scale - 0.5 for r, _ in split
+                 for p in (sheet_partial.pentagon(r), sheet_partial.sharp_pentagon(r))
+                 if p is not None]
+        paths.append(_Hidden([sheet_partial.hypotheses(p, SPLIT_SEEN * cfg.min_seen)
+                              for p in pents],
+                             lambda hyp, out: sheet_split.finish(hyp, out, band, image_bgr),
+                             seen_out=True, strict_cover=True))
     _accept_partial(image_bgr, paths, band, cfg, K, found, dist=dist)
 
 
@@ -433,8 +463,11 @@ class _Hidden:
     """
     One hidden-corner path for ``_accept_partial``: hypotheses grouped by seen region,
     ``finish`` turning refined sides into corners, whether the rough corners' aspect is
-    tested, the sides that must pass the first refinement pass (None: all) and a screen
-    after it (None: none).
+    tested, the sides that must pass the first refinement pass (None: all), a screen
+    after it (None: none), and whether ``finish`` also gives the seen side ends for the
+    tests (its seventh result, instead of the hypothesis's) and the seen outline in parts
+    (its eighth); ``strict_cover``: the hidden corner must not show the surface or a blend
+    of it and the sheet either (``sheet_checks.covered``).
     """
 
     groups: list[list[sheet_partial.Partial]]
@@ -442,6 +475,8 @@ class _Hidden:
     rough_aspect: bool = True
     checked: npt.NDArray[np.intp] | None = None
     screen: Callable[[sheet_partial.Partial, sides.Refined], bool] | None = None
+    seen_out: bool = False
+    strict_cover: bool = False
 
 
 def _accept_partial(image_bgr: npt.NDArray[np.uint8], paths: list[_Hidden], band: float,
@@ -481,18 +516,21 @@ def _accept_partial(image_bgr: npt.NDArray[np.uint8], paths: list[_Hidden], band
             for hyp in group:
                 sides_out = next(refined)
                 out = None if sides_out is None else path.finish(hyp, sides_out)
+                seen = hyp.seen_ends if out is None or not path.seen_out else out[6]
                 if out is None or not sheet_checks.big_enough(out[5], image_bgr.shape, cfg) or \
-                        not sheet_checks.passes(image_bgr, out[:5], cfg, K, hyp.seen_ends,
-                                                dist=dist) or \
-                        not sheet_checks.covered(image_bgr, out[0][3], out[3], cfg):
+                        not sheet_checks.passes(image_bgr, out[:5], cfg, K, seen, dist=dist) or \
+                        not sheet_checks.covered(image_bgr, out[0][3], out[3], cfg,
+                                                 out[4] if path.strict_cover else None):
                     continue
                 support = float(out[1].mean())
                 vs = np.array([support] * 3 + [0.5 * support * float(hyp.seen_frac.min())])
                 # A corner placed by the aspect: scored lower, and ranked after corners seen.
-                rank = support * float(out[6].min()) if len(out) > 6 else support
-                vs = vs * out[6] if len(out) > 6 else vs
+                factors = out[6] if len(out) > 6 and not path.seen_out else None
+                rank = support * float(factors.min()) if factors is not None else support
+                vs = vs * factors if factors is not None else vs
                 if best is None or rank > best[0]:
-                    best = (rank, (float(vs.mean()), out[0], out[5], vs))
+                    best = (rank, (float(vs.mean()), out[0],
+                                   out[7] if path.seen_out else out[5], vs))
             if best is not None and all(np.abs(best[1][1] - f[1]).max() > 4.0 for f in found):
                 found.append(best[1])
 
@@ -510,5 +548,7 @@ def _detection(f: Found, model: targets.SheetModel) -> targets.TargetDetection:
     return targets.TargetDetection(
         target_type='sheet', name=model.name, vertices_px=corners[order],
         vertex_ids=np.arange(4, dtype=np.int64), edges=model.edges(),
-        polygons=(('sheet', outline if vertex_scores is not None else corners[order]),),
+        polygons=tuple(('sheet', p) for p in (
+            (corners[order],) if vertex_scores is None else
+            outline if isinstance(outline, tuple) else (outline,))),
         score=score, vertex_scores=None if vertex_scores is None else vertex_scores[order])

@@ -37,6 +37,7 @@ PENT_MIN_SOLIDITY = 0.75  # a region with a corner cut off by an occluder's notc
 FREE_INSET_PX = 2.0  # a 3x3-dilated Canny line keeps edge-free regions this far inside
 COLOUR_SEEDS = 3  # whitest regions whose own colour is looked for again (``colour_quads``)
 COLOUR_TOLS = (12, 20, 30)  # largest channel difference from that colour, 0-255
+SPLIT_MIN_AREA = 0.1  # of the rough area threshold: the smallest cut-off part of a sheet joined
 DETACH_PX = 9  # diameter of the opening that cuts bright blobs off a page (``detached_quads``)
 
 
@@ -151,6 +152,7 @@ class Candidates:
         self._regions: list[Region] = []
         self._whites: list[float] = []
         self._edges_done = False
+        self._split: list[tuple[npt.NDArray[np.int32], float]] = []
         self._add(white_masks(work_white), 0)
         self._white_count = len(self._regions)
 
@@ -215,8 +217,40 @@ class Candidates:
                 if inner:
                     self._regions.append((c, grow))
                     self._whites.append(white)
+                    if i < FREE_MASK and cfg.split_gap > 0.0:
+                        self._add_split(c, contours, min_area, white)
                 if new and quad is not None:
                     quads.append(quad)
+
+    def _add_split(self, contour: npt.NDArray[np.int32],
+                   contours: 'tuple[npt.NDArray[np.int32], ...]', min_area: float,
+                   white: float) -> None:
+        """
+        Add, for the hidden-corner paths only, ``contour`` joined with each small region of
+        the same mask near it: an object standing on a sheet's corner can cut a bit of the
+        sheet off (one seen corner and a stretch of the sides at it), and the two parts'
+        joint outline is the five-sided region of a sheet with its corner hidden.
+        """
+        size = np.sqrt(cv2.contourArea(contour))
+        x, y, w, h = cv2.boundingRect(contour)
+        for other in contours:
+            if other is contour or not SPLIT_MIN_AREA * min_area <= cv2.contourArea(other) \
+                    < min_area:
+                continue
+            ox, oy, ow, oh = cv2.boundingRect(other)
+            gap = max(ox - (x + w), x - (ox + ow), oy - (y + h), y - (oy + oh))
+            if gap > self.cfg.split_gap * size:
+                continue
+            gap = -max(cv2.pointPolygonTest(contour, (float(px), float(py)), True)
+                       for px, py in other.reshape(-1, 2))
+            if gap <= self.cfg.split_gap * size:
+                self._split.append((np.vstack([contour, other]), white))
+
+    @property
+    def split_regions(self) -> list[Region]:
+        """``white_regions`` joined with a nearby cut-off part (``_add_split``), whitest first."""
+        order = np.argsort(-np.array([w for _, w in self._split]), kind='stable')
+        return [(self._split[i][0], 0.0) for i in order]
 
 
 def candidates(work_bgr: npt.NDArray[np.uint8], cfg: 'SheetConfig'
@@ -283,11 +317,14 @@ def _add_quads(quads: list[Array], mask: npt.NDArray[np.uint8],
             quads.append(quad)
 
 
-def pentagons(regions: list[Region]) -> list[Array]:
-    """Return the distinct (5, 2) pentagons (a sheet with a corner cut off) of ``regions``."""
+def pentagons(regions: list[Region], sharp: bool = False) -> list[Array]:
+    """
+    Return the distinct (5, 2) pentagons (a sheet with a corner cut off) of ``regions``:
+    ``sheet_partial.pentagon``, or with ``sharp`` ``sheet_partial.sharp_pentagon``.
+    """
     pents: list[Array] = []
     for contour, grow in regions:
-        pent = sheet_partial.pentagon(contour)
+        pent = (sheet_partial.sharp_pentagon if sharp else sheet_partial.pentagon)(contour)
         pent = None if pent is None else offset(pent, grow)
         if pent is not None and all(np.abs(pent - q).max() > 2.0 for q in pents):
             pents.append(pent)

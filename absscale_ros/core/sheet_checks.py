@@ -21,11 +21,14 @@ SHADE_FLOOR = 32.0  # brightness floor of the shade-free colour test: dark colou
 
 
 def covered(image_bgr: npt.NDArray[np.uint8], corner: Array, inside: Array,
-            cfg: 'SheetConfig') -> bool:
+            cfg: 'SheetConfig', outside: Array | None = None) -> bool:
     """
-    Return True when something other than the sheet's colour lies on the hidden corner. A
-    corner beyond the image border is not hidden by anything seen (a board the border cuts:
-    a negative row once sliced the whole image column as its patch).
+    Return True when something other than the sheet's colour lies on the hidden corner, and
+    (with ``outside``, the (4, 3) colours just outside the sides) other than the surface's or
+    a blend of the two: a card whose blurred corner looked cut off shows only the blurred
+    card and the desk at the corner placed beyond it. A corner beyond the image border is
+    not hidden by anything seen (a board the border cuts: a negative row once sliced the
+    whole image column as its patch).
     """
     h, w = image_bgr.shape[:2]
     u, v = int(round(corner[0])), int(round(corner[1]))
@@ -34,8 +37,13 @@ def covered(image_bgr: npt.NDArray[np.uint8], corner: Array, inside: Array,
     patch = image_bgr[max(v - 2, 0):min(v + 3, h), max(u - 2, 0):min(u + 3, w)].reshape(-1, 3)
     if not len(patch):
         return False
-    ref = np.median(inside, axis=0)
-    return bool(np.linalg.norm(np.median(patch, axis=0) - ref) >= cfg.min_contrast)
+    colour, ref = np.median(patch, axis=0), np.median(inside, axis=0)
+    if outside is not None:  # the nearest blend of the sheet's and the surface's colours
+        out = np.median(outside, axis=0)
+        step = ref - out
+        t = float((colour - out) @ step) / max(float(step @ step), 1e-9)
+        ref = out + min(max(t, 0.0), 1.0) * step
+    return bool(np.linalg.norm(colour - ref) >= cfg.min_contrast)
 
 
 def big_enough(outline: Array, shape: tuple[int, ...], cfg: 'SheetConfig') -> bool:

@@ -23,6 +23,9 @@ Array = npt.NDArray[np.float64]
 # Refinement bands after the widest, px: without the middle pass sides seen only in part lose
 # sheets (two frames of the unseen seed 42).
 FINE_BANDS = (4.0, 3.0)
+FINE_FRAC = 0.01  # of the hull's perimeter: the simplification that keeps blunted corners
+BLUNT_PX = 6.0  # work px: an edge this short between two longer ones is a blunted corner
+BLUNT_FRAC = 0.34  # ... and shorter than this fraction of both neighbours
 
 
 @dataclass(frozen=True, eq=False)
@@ -45,6 +48,48 @@ class Partial:
 def pentagon(contour: npt.NDArray[np.int32]) -> Array | None:
     """Return the (5, 2) simplified convex hull of a contour when it has five vertices."""
     return lines.rough_polygon(contour, 5, (0.01, 0.02, 0.03))
+
+
+def sharp_pentagon(contour: npt.NDArray[np.int32]) -> Array | None:
+    """
+    Return the hull simplified finely with its blunted corners sharpened (``sharpened``) when
+    that leaves five vertices and differs from ``pentagon``. A small sheet in the work image
+    has every corner cut by one short edge, so a five-vertex simplification either spends a
+    vertex on a blunted corner or drops the occluder's cut.
+    """
+    hull = cv2.convexHull(contour)
+    fine = cv2.approxPolyDP(hull, FINE_FRAC * cv2.arcLength(hull, True), True)
+    sharp = sharpened(fine.reshape(-1, 2).astype(np.float64))
+    if sharp is None or len(sharp) != 5:
+        return None
+    plain = pentagon(contour)
+    if plain is not None and any(np.abs(np.roll(sharp, -k, axis=0) - plain).max() <= 2.0
+                                 for k in range(5)):
+        return None
+    return sharp
+
+
+def sharpened(poly: Array) -> Array | None:
+    """
+    Return a convex polygon (N, 2) with each blunted corner (an edge shorter than
+    ``BLUNT_FRAC`` of both its neighbours, and than ``BLUNT_PX``) replaced by the meeting
+    point of its neighbours, shortest first; None when a meeting point is not near.
+    """
+    poly = poly.copy()
+    while len(poly) > 4:
+        ln = np.hypot(*(np.roll(poly, -1, axis=0) - poly).T)
+        short = (ln < BLUNT_PX) & (ln < BLUNT_FRAC * np.minimum(np.roll(ln, 1), np.roll(ln, -1)))
+        if not short.any():
+            return poly
+        e = int(np.argmin(np.where(short, ln, np.inf)))
+        n, centre = len(poly), poly.mean(axis=0)
+        meet = lines.intersect(lines.line_through(poly[(e - 1) % n], poly[e], centre),
+                               lines.line_through(poly[(e + 1) % n], poly[(e + 2) % n], centre))
+        if meet is None or np.hypot(*(meet - poly[e])) > 2.0 * BLUNT_PX:
+            return None
+        poly[e] = meet
+        poly = np.delete(poly, (e + 1) % n, axis=0)
+    return poly
 
 
 def hypotheses(poly: Array, min_seen: float) -> list[Partial]:
@@ -83,11 +128,12 @@ def rough_sides(hyp: Partial) -> tuple[Array, int]:
     return rough, int(np.clip(seen_len.mean() / 4.0, 16, 64))
 
 
-def finish(hyp: Partial, out: sides.Refined, band_px: float
+def finish(hyp: Partial, out: sides.Refined, band_px: float, hidden_slack: float = 1.0
            ) -> tuple[Array, Array, Array, Array, Array, Array] | None:
     """
     Intersect a hypothesis's sides, refined along their seen parts (``out``, from
-    ``sides.refine_many``).
+    ``sides.refine_many``). Each corner may move from the rough one by twice the band and
+    4 px, the hidden one ``hidden_slack`` times that.
 
     :returns: ((4, 2) corners, (4,) supports, (4,) colour steps, (4, 3) inside colours,
         (4, 3) outside colours, (5, 2) outline of the seen part) or None.
@@ -96,7 +142,8 @@ def finish(hyp: Partial, out: sides.Refined, band_px: float
     corners = lines.quad_corners(list(refined))
     if corners is None or not cv2.isContourConvex(corners.astype(np.float32)):
         return None
-    if np.abs(corners - hyp.corners).max() > 2.0 * band_px + 4.0:
+    reach = (2.0 * band_px + 4.0) * np.array([1.0, 1.0, 1.0, hidden_slack])
+    if (np.abs(corners - hyp.corners).max(axis=1) > reach).any():
         return None
     # The seen outline: the cut points moved onto the refined sides.
     cuts = [hyp.seen_ends[2, 1], hyp.seen_ends[3, 0]]

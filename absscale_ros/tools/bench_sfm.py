@@ -156,10 +156,14 @@ def _vertices(truth: dict[str, Any], gt: dict[str, Any], rng: np.random.Generato
 
 
 def _detected(image: np.ndarray, camera: CameraModel, gt: dict[str, Any]) -> vm.Vertices | None:
-    """The vertex detector's vertices of one keyframe (target type from the ground truth)."""
+    """
+    The vertex detector's vertices of one keyframe (target type from the ground truth: the
+    scene's sheet size, as ``bench scale`` configures it; letter when the bag does not say).
+    """
     from absscale_ros.core import detect
     cube = any(t['kind'] == 'cube' for t in gt['targets'])
-    result = detect.detect(image, detect.DetectConfig(target='cube' if cube else 'letter'),
+    sheet = gt.get('scene', {}).get('variant', {}).get('target', 'letter')
+    result = detect.detect(image, detect.DetectConfig(target='cube' if cube else sheet),
                            camera.K)
     return sfm_outputs.vertices_from_rows(detect.vertices_array(result))
 

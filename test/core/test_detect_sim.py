@@ -25,8 +25,8 @@ def _edge_lengths(fr):
     return out
 
 
-@pytest.mark.parametrize('fr', [f for f in FRAMES if f['covers_min_area']],
-                         ids=lambda f: f['file'])
+@pytest.mark.parametrize('fr', [f for f in FRAMES if f['covers_min_area']
+                                and not f.get('hidden_corner')], ids=lambda f: f['file'])
 def test_sim_frame_target_found_to_half_a_percent(fr):
     img = cv2.imread(str(DATA / fr['file']))
     res = detect.detect(img, detect.DetectConfig(target=fr['target']), np.array(fr['K']))
@@ -44,6 +44,31 @@ def test_sim_frame_target_found_to_half_a_percent(fr):
     assert np.median(rel) <= (0.005 if fr['motion_blur_px'] < 30.0 else 0.01), fr['what']
     extra = [np.hypot(*(true - p).T).min() for p in found]
     assert max(extra) < 0.1 * min(lengths.values()), fr['what']
+
+
+@pytest.mark.parametrize('fr', [f for f in FRAMES if f.get('hidden_corner')],
+                         ids=lambda f: f['file'])
+def test_sim_frame_sheet_with_a_corner_under_a_box(fr):
+    """
+    A box standing on a sheet's corner (seeds 104 and 57 with ``occluded=true``): the three
+    seen corners to the requirement's 0.5 % of their edge, the hidden one where its two
+    sides' seen parts meet (within 1 %), scored lower than the seen ones. The base detector
+    found neither: the small sheet's rough outline spent its five vertices on blunted
+    corners, and on 57 the box cuts the sheet into two regions.
+    """
+    img = cv2.imread(str(DATA / fr['file']))
+    res = detect.detect(img, detect.DetectConfig(target=fr['target']), np.array(fr['K']))
+    assert [d.target_type for d in res.detections] == ['sheet']
+    d = res.detections[0]
+    true = np.array(fr['vertices_px'])
+    side = min(np.hypot(*(true[a] - true[b])) for a, b in fr['edges'])
+    near = [int(np.argmin(np.hypot(*(d.vertices_px - t).T))) for t in true]
+    assert sorted(near) == [0, 1, 2, 3]  # one detected vertex per true corner
+    rel = np.array([np.hypot(*(d.vertices_px[j] - t)) / side for j, t in zip(near, true)])
+    seen = np.array(fr['vertex_visible'])
+    assert seen.sum() == 3 and rel[seen].max() <= 0.005 and rel[~seen].max() <= 0.01
+    hidden = near[int(np.flatnonzero(~seen)[0])]
+    assert d.scores()[hidden] < 0.5 < np.delete(d.scores(), hidden).min()
 
 
 @pytest.mark.parametrize('fr', [f for f in FRAMES if not f['covers_min_area']],

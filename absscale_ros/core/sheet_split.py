@@ -1,0 +1,83 @@
+"""
+A sheet that an object standing on it cuts in two: its hidden corner from both parts.
+
+Seen from low, a box on one corner of a page can hide that corner and the middle of a side
+next to it, so the page shows as a large region and a small one beyond the box holding
+another corner (``sheet_candidates``: a region joined with a small part near it). The two
+parts' joint outline is the five-sided outline of ``sheet_partial``, with one difference:
+the side that runs under the box between the parts is seen only at its two ends. Its colours
+and its support are therefore judged on the stretches where the sheet's colour shows just
+inside it, not on its middle, which is the box's.
+"""
+import numpy as np
+import numpy.typing as npt
+
+from absscale_ros.core import sheet_partial, sheet_stub, sides
+
+Array = npt.NDArray[np.float64]
+SAMPLES = 64  # colour samples along each side
+MIN_SHOWN = 0.2  # of a side: the least that must show the sheet's colour inside it
+
+
+def shown(image_bgr: npt.NDArray[np.uint8], corners: Array, lines_: Array, colour: Array
+          ) -> tuple[Array, Array]:
+    """
+    Return (4,) the fraction of each side (between its corners, clear of them by a tenth)
+    along which the colour just inside it is the sheet's ``colour`` (BGR), and (4, 2, 2)
+    where on each side the first stretch showing it ends and the last one begins.
+    """
+    h, w = image_bgr.shape[:2]
+    ts = np.linspace(0.1, 0.9, SAMPLES)
+    frac, runs = np.zeros(4), np.zeros((4, 2, 2))
+    for s in range(4):
+        a, b = corners[s], corners[(s + 1) % 4]
+        pts = a + ts[:, None] * (b - a) - sheet_stub.INSIDE_PX * lines_[s, :2]
+        u = np.clip(np.round(pts[:, 0]).astype(int), 0, w - 1)
+        v = np.clip(np.round(pts[:, 1]).astype(int), 0, h - 1)
+        ok = np.linalg.norm(image_bgr[v, u].astype(np.float64) - colour, axis=1) \
+            < sheet_stub.GO_ON_CONTRAST
+        frac[s] = float(ok.mean())
+        # the first and the last run of samples showing the sheet (where its edges change)
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(int), [0]])))
+        if len(edges):
+            runs[s] = [a + ts[edges[1] - 1] * (b - a), a + ts[edges[-2]] * (b - a)]
+    return frac, runs
+
+
+def finish(hyp: sheet_partial.Partial, out: sides.Refined, band_px: float,
+           image_bgr: npt.NDArray[np.uint8]
+           ) -> tuple[Array, ...] | None:
+    """
+    ``sheet_partial.finish`` of a hypothesis from the joined parts, (4, 2, 2) the seen side
+    ends for the floor-tile test and the seen outline's two parts (a tuple of (M, 2)). Of
+    the two sides between seen corners, the one less shown (``shown``) runs under the
+    object: its support is taken over the part shown, the other sides' colours and colour
+    step stand in for its own in the one-colour and contrast tests, and the floor-tile test
+    looks beside its first stretch shown. The rough hidden corner comes from the small
+    part's rough outline, so it may move as much more as the side seen there is short.
+    """
+    res = sheet_partial.finish(hyp, out, band_px, 1.0 / float(hyp.seen_frac.min()))
+    if res is None:
+        return None
+    corners, supports, steps, inside, outside, outline = res
+    frac, runs = shown(image_bgr, corners, out[0], np.median(inside, axis=0))
+    gap = int(np.argmin(frac[:2]))  # of the sides between seen corners (2 and 3 end hidden)
+    if frac[gap] < MIN_SHOWN:
+        return None
+    rest = np.delete(np.arange(4), gap)
+    supports, steps = supports.copy(), steps.copy()
+    inside, outside, seen = inside.copy(), outside.copy(), hyp.seen_ends.copy()
+    supports[gap] = min(1.0, supports[gap] / frac[gap])
+    steps[gap] = np.median(steps[rest])
+    inside[gap], outside[gap] = np.median(inside[rest], axis=0), np.median(outside[rest], axis=0)
+    # The floor-tile test beside the first stretch shown, not beside the box; the seen
+    # outline in two parts, the box between them left out.
+    seen[gap] = [corners[gap], runs[gap, 0]]
+    cut = np.array([outline[3], outline[4]])  # on sides 2 and 3
+    if gap == 1:
+        parts = (np.array([corners[0], corners[1], runs[1, 0], cut[1]]),
+                 np.array([runs[1, 1], corners[2], cut[0]]))
+    else:
+        parts = (np.array([cut[1], corners[0], runs[gap, 0]]),
+                 np.array([runs[gap, 1], corners[1], corners[2], cut[0]]))
+    return corners, supports, steps, inside, outside, outline, seen, parts
