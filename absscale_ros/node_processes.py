@@ -86,9 +86,22 @@ class NodeProcesses:
             tmp.write_text(json.dumps({'version': version, **json.loads(counts)}))
             tmp.replace(Path(self._dir.name) / 'expect.json')  # never read half written
             return False
-        answered = all(_read(Path(self._dir.name) / f'{"+".join(g)}.ready') ==
-                       str(self._expected[0]) for g in self.groups)
-        return answered and not _unmatched(local, json.loads(counts))
+        answers = [_read(Path(self._dir.name) / f'{"+".join(g)}.ready') for g in self.groups]
+        answers = [json.loads(a) for a in answers if a]
+        if len(answers) < len(self.groups) or \
+                any(a['version'] != self._expected[0] for a in answers):
+            return False
+        # Discovery here must know every endpoint there is: one it has not seen yet would
+        # not be counted, and a publisher here would seem matched without it.
+        known = json.loads(counts)
+        for side in ('pubs', 'subs'):
+            needed = _own_endpoints(local)[side]
+            for a in answers:
+                for topic, n in a[side].items():
+                    needed[topic] = needed.get(topic, 0) + n
+            if any(known[side].get(t, 0) < n for t, n in needed.items()):
+                return False
+        return not _unmatched(local, known)
 
     def _log(self, label: str) -> str:
         try:
@@ -145,6 +158,17 @@ def _endpoint_counts(node: Node) -> str:
                        'subs': {t: node.count_subscribers(t) for t in topics}}, sort_keys=True)
 
 
+def _own_endpoints(nodes: list[Node]) -> dict[str, dict[str, int]]:
+    """{'pubs': {topic: publishers}, 'subs': {topic: subscriptions}} of ``nodes``."""
+    out: dict[str, dict[str, int]] = {'pubs': {}, 'subs': {}}
+    for node in nodes:
+        for side, endpoints in (('pubs', node.publishers), ('subs', node.subscriptions)):
+            for e in endpoints:
+                if e.topic_name not in UNCHECKED_TOPICS:
+                    out[side][e.topic_name] = out[side].get(e.topic_name, 0) + 1
+    return out
+
+
 def _unmatched(nodes: list[Node], counts: dict[str, dict[str, int]]) -> list[str]:
     """The topics of ``nodes`` whose publishers or subscriptions matched fewer peers than
     ``counts`` (from ``_endpoint_counts``) says exist."""
@@ -186,7 +210,8 @@ def group_main() -> None:
                 counts = json.loads(expect)
                 if not _unmatched(list(nodes.values()), counts):
                     answered = expect
-                    label.write_text(str(counts['version']))
+                    own = _own_endpoints(list(nodes.values()))
+                    label.write_text(json.dumps({'version': counts['version'], **own}))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
