@@ -72,9 +72,10 @@ class RunOptions:
     record: str | None = None  # MCAP file for every graph topic (not the bag's own)
     drain_s: float = 0.3
     processes: bool = False  # each pipeline node in its own process, over real DDS
-    # Offline, not --processes: the SfM and the nodes after it (BACK_NODES) in a second process,
-    # so they have a core of their own while this one decodes, detects and selects keyframes.
-    split: bool = True
+    # Offline, not --processes: the detector, and the SfM with the scale node, in processes of
+    # their own, so a run uses both cores (opt-in: under load it once lost a keyframe's input at
+    # start, and the indoor sample then claimed no scale; one process is the tested default).
+    split: bool = False
 
 
 def dense_enabled(sections: dict[str, dict[str, Any]]) -> bool:

@@ -52,13 +52,13 @@ def _deterministic(report: dict) -> dict:
 
 
 def test_processes_give_the_same_result_as_one_process(tmp_path: Path) -> None:
-    """--processes: every node its own process, over real DDS on loopback; the default
-    (detector and sfm in processes of their own) too."""
+    """--processes: every node its own process, over real DDS on loopback; --split (detector
+    and sfm in processes of their own) too."""
     bag = tmp_path / 'cam.mcap'
     write_camera_bag(bag, frames=10, size=(640, 360))
     reports = []
-    for extra in (['--one-process'], ['--processes'], []):
-        out = tmp_path / (extra[0][2:] if extra else 'default')
+    for extra in ([], ['--processes'], ['--split']):
+        out = tmp_path / (extra[0][2:] if extra else 'one')
         done = subprocess.run([sys.executable, '-m', 'absscale_ros.cli', 'run', str(bag),
                                '--out', str(out), '--quiet', *extra],
                               capture_output=True, text=True, timeout=300)
@@ -68,8 +68,8 @@ def test_processes_give_the_same_result_as_one_process(tmp_path: Path) -> None:
         errors = {n: r['error'] for n, r in reports[-1]['nodes'].items() if 'error' in r}
         assert not errors, (extra, errors)  # a node process that wrote no report
         assert reports[-1]['replay']['step_timeouts'] == 0, warnings  # which frame, which node
-    one, procs, default = reports
-    assert _deterministic(procs) == _deterministic(one) == _deterministic(default)
+    one, procs, split = reports
+    assert _deterministic(procs) == _deterministic(one) == _deterministic(split)
 
 
 def _node_children(pid: int) -> list[int]:

@@ -29,10 +29,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              '(use with --processes: one process cannot keep up at 1x)')
     parser.add_argument('--processes', action='store_true',
                         help='each node in its own process, talking over DDS on loopback')
-    parser.add_argument('--one-process', action='store_true',
-                        help='every node in this process (default offline: the detector and '
-                             'the sfm with the scale node each in a process of their own, '
-                             'so a run uses two cores)')
+    parser.add_argument('--split', action='store_true',
+                        help='offline, experimental: the detector and the sfm with the scale '
+                             'node each in a process of their own, so a run uses two cores '
+                             '(default: every node in this process)')
     parser.add_argument('--quiet', action='store_true', help='no progress bar')
 
 
@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
               file=sys.stderr)
     options = graph.RunOptions(mode=args.mode, rate=args.rate, live=args.live,
                                domain_id=args.domain_id, record=args.record,
-                               processes=args.processes, split=not args.one_process)
+                               processes=args.processes, split=args.split)
     report = graph.run_graph(args.bag, args.config, options, on_progress=show)
     if show is not None:
         print(file=sys.stderr)
