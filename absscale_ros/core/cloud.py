@@ -21,19 +21,18 @@ def write_ply(path: Path, points: FloatArray, colors: npt.NDArray[np.uint8] | No
     :param colors: (N, 3) uint8 RGB, or None.
     :param normals: (N, 3) unit normals, or None.
     """
-    fields = [(a, '<f8') for a in 'xyz']
+    # Open3D's property order: position, normal, colour.
+    columns = [(('x', 'y', 'z'), '<f8', points)]
     if normals is not None and len(normals):
-        fields += [(f'n{a}', '<f8') for a in 'xyz']
+        columns.append((('nx', 'ny', 'nz'), '<f8', normals))
     if colors is not None and len(colors):
-        fields += [(c, 'u1') for c in ('red', 'green', 'blue')]
+        columns.append((('red', 'green', 'blue'), 'u1', colors))
+    fields = [(name, kind) for names, kind, _ in columns for name in names]
     rows = np.empty(len(points), np.dtype(fields))
-    for i, a in enumerate('xyz'):
-        rows[a] = np.asarray(points, np.float64)[:, i]
-        if normals is not None and len(normals):
-            rows[f'n{a}'] = np.asarray(normals, np.float64)[:, i]
-    if colors is not None and len(colors):
-        for i, c in enumerate(('red', 'green', 'blue')):
-            rows[c] = np.asarray(colors, np.uint8)[:, i]
+    for names, kind, values in columns:
+        values = np.asarray(values, kind)
+        for i, name in enumerate(names):
+            rows[name] = values[:, i]
     header = ['ply', 'format binary_little_endian 1.0', 'comment Created by Open3D',
               f'element vertex {len(rows)}']
     header += [f'property {"double" if t == "<f8" else "uchar"} {n}' for n, t in fields]

@@ -192,6 +192,7 @@ class Candidates:
             contours, tree = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
             # An edge-free region stops short of the outline by the dilated edge's half width.
             grow = FREE_INSET_PX if i == FREE_MASK else 0.0
+            parts = None  # this mask's small regions (``_cut_off_parts``), once needed
             for c, node in zip(contours, tree[0] if tree is not None else ()):
                 solidity = region_shape(c, min_area, cfg)
                 if solidity < PENT_MIN_SOLIDITY:
@@ -218,26 +219,25 @@ class Candidates:
                     self._regions.append((c, grow))
                     self._whites.append(white)
                     if i < FREE_MASK and cfg.split_gap > 0.0:
-                        self._add_split(c, contours, min_area, white)
+                        parts = _cut_off_parts(contours, min_area) if parts is None else parts
+                        self._add_split(c, parts, white)
                 if new and quad is not None:
                     quads.append(quad)
 
     def _add_split(self, contour: npt.NDArray[np.int32],
-                   contours: 'tuple[npt.NDArray[np.int32], ...]', min_area: float,
+                   parts: list[tuple[npt.NDArray[np.int32], tuple[int, int, int, int]]],
                    white: float) -> None:
         """
         Add, for the hidden-corner paths only, ``contour`` joined with each small region of
-        the same mask near it: an object standing on a sheet's corner can cut a bit of the
-        sheet off (one seen corner and a stretch of the sides at it), and the two parts'
-        joint outline is the five-sided region of a sheet with its corner hidden.
+        the same mask (``parts``) near it: an object standing on a sheet's corner can cut a
+        bit of the sheet off (one seen corner and a stretch of the sides at it), and the two
+        parts' joint outline is the five-sided region of a sheet with its corner hidden.
         """
         size = np.sqrt(cv2.contourArea(contour))
         x, y, w, h = cv2.boundingRect(contour)
-        for other in contours:
-            if other is contour or not SPLIT_MIN_AREA * min_area <= cv2.contourArea(other) \
-                    < min_area:
+        for other, (ox, oy, ow, oh) in parts:
+            if other is contour:
                 continue
-            ox, oy, ow, oh = cv2.boundingRect(other)
             gap = max(ox - (x + w), x - (ox + ow), oy - (y + h), y - (oy + oh))
             if gap > self.cfg.split_gap * size:
                 continue
@@ -251,6 +251,15 @@ class Candidates:
         """``white_regions`` joined with a nearby cut-off part (``_add_split``), whitest first."""
         order = np.argsort(-np.array([w for _, w in self._split]), kind='stable')
         return [(self._split[i][0], 0.0) for i in order]
+
+
+def _cut_off_parts(contours: 'tuple[npt.NDArray[np.int32], ...]', min_area: float
+                   ) -> list[tuple[npt.NDArray[np.int32], tuple[int, int, int, int]]]:
+    """The regions of one mask small enough to be a part of a sheet an object cut off
+    (``Candidates._add_split``), with their bounding boxes: measured once per mask, not once
+    per region they may join."""
+    return [(c, cv2.boundingRect(c)) for c in contours
+            if SPLIT_MIN_AREA * min_area <= cv2.contourArea(c) < min_area]
 
 
 def candidates(work_bgr: npt.NDArray[np.uint8], cfg: 'SheetConfig'
