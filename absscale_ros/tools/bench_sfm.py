@@ -283,9 +283,7 @@ def _vertex_truth(m: Any, truth: dict[int, Any], gt: dict[str, Any], published: 
     points, true_pts, usable = [], [], []
     for lm_id in published:
         lm = m.landmarks[lm_id]
-        centres = np.array([m.keyframes[k].T_world_cam[:3, 3] for k in lm.obs_px])
-        usable.append(len(lm.obs_px) >= 3 and
-                      sfm_outputs.widest_angle_deg(lm.point_world, centres) >= 3.0)
+        usable.append(len(lm.obs_px) >= 3 and sfm_outputs.vertex_angle_deg(m, lm_id) >= 3.0)
         points.append(lm.point_world)
         kf = next(iter(lm.obs_px))
         if truth[kf] is None:
