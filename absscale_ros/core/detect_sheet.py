@@ -102,9 +102,9 @@ class SheetConfig:
         times its size (square root of its area) away, for the hidden-corner path: a box on
         a sheet's corner, seen from low, cuts the sheet in two (``sheet_split``; 0 turns it
         off).
-    :param blur_band_frac: when nothing else is found, rough quadrilaterals are retried as a
-        motion-blurred sheet, each side searched this fraction of the shorter side either
-        side (``_accept_blurred``; 0 turns it off).
+    :param blur_band_frac: when no whole sheet is found, rough quadrilaterals are retried as
+        a motion-blurred sheet (before the hidden-corner paths), each side searched this
+        fraction of the shorter side either side (``_accept_blurred``; 0 turns it off).
     """
 
     sheet: str = 'letter'
@@ -256,12 +256,12 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
         if line_quads:
             _accept_quads(image_bgr, [q for q, _ in line_quads], line_quads[0][1], cfg, K, found,
                           dist)
+    if not found and cfg.blur_band_frac > 0.0:
+        _accept_blurred(image_bgr, unfound, band, cfg, K, found, dist)
     if not found:
         hidden = [r for r in cands.white_regions if not _whole_small(r[0], small, scale)]
         _accept_hidden(image_bgr, hidden, scale, band, cfg, K, found, dist,
                        cands.split_regions)
-    if not found and cfg.blur_band_frac > 0.0:
-        _accept_blurred(image_bgr, unfound, band, cfg, K, found, dist)
     found.sort(key=lambda f: -f[0])
     return [_detection(f, sheet_checks.best_model(f[1], image_bgr.shape, cfg, K)) for f in found]
 
@@ -391,7 +391,7 @@ def _accept_blurred(image_bgr: npt.NDArray[np.uint8], quads_full: list[Array], b
                        for a, b in zip(refined[0], np.roll(refined[0], -1, axis=0))])
         ramps = sides.ramp_widths(image_bgr, ls, np.stack(
             [refined[0], np.roll(refined[0], -1, axis=0)], axis=1), wide, refined[3],
-            refined[4])
+            refined[4], step_px=sides.blur_step(wide))
         if ramps.max() < BLUR_MIN_RAMP_PX or not _blur_alike(ramps):
             continue  # sharp, or one side smeared by something else than motion
         tol = sheet_checks.aspect_tolerance(refined[0], cfg, K,

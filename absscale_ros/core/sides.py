@@ -22,6 +22,10 @@ import numpy.typing as npt
 Array = npt.NDArray[np.float64]
 STEP_PX = 0.5  # sample spacing along a profile
 MARGIN = 0.12  # fraction of a side left out at both ends, where the neighbouring side interferes
+# A motion-blurred side is searched in a band tens of px wide, but its ramp is 8 px or more:
+# samples this many per half band (at least ``STEP_PX`` apart) place its mid-level crossing
+# as well, with a third of the samples in a 76 px band (``blur_step``).
+BLUR_HALF_SAMPLES = 48
 
 
 def _project_ends(lines_: Array, ends: Array) -> Array:
@@ -30,11 +34,18 @@ def _project_ends(lines_: Array, ends: Array) -> Array:
     return ends - dist[..., None] * lines_[:, None, :2]
 
 
+def blur_step(band_px: float) -> float:
+    """Return the sample spacing px of a blurred side's profiles (``BLUR_HALF_SAMPLES``)."""
+    return max(STEP_PX, band_px / BLUR_HALF_SAMPLES)
+
+
 def _profiles(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array, band_px: float,
-              ns: npt.NDArray[np.int64]) -> tuple[Array, Array, Array]:
+              ns: npt.NDArray[np.int64], step_px: float = STEP_PX
+              ) -> tuple[Array, Array, Array]:
     """
     Sample colour profiles across every side, ``ns`` (S,) of them on each (N = the most; a
-    side with fewer repeats its last profile: ``_valid`` tells them apart).
+    side with fewer repeats its last profile: ``_valid`` tells them apart), samples
+    ``step_px`` apart.
 
     :returns: ((S, N, 2) profile centres on the lines, (K,) offsets along the normals,
         (S, N, K, 3) float32 BGR samples).
@@ -43,7 +54,7 @@ def _profiles(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array, band
     j = np.minimum(np.arange(ns.max())[None, :], ns[:, None] - 1)
     ts = MARGIN + (1.0 - 2.0 * MARGIN) * (j + 0.5) / ns[:, None]
     centres = q[:, None, 0, :] + ts[:, :, None] * (q[:, 1, :] - q[:, 0, :])[:, None, :]
-    offs = np.arange(-band_px, band_px + 1e-9, STEP_PX)
+    offs = np.arange(-band_px, band_px + 1e-9, step_px)
     s, n, k = len(lines_), centres.shape[1], len(offs)
     # (u and v apart: the same sums as on (S, N, K, 2), without the strided copies)
     u, v = (centres[:, :, i, None] + offs * lines_[:, None, None, i] for i in (0, 1))
@@ -154,18 +165,19 @@ def _crossings(samples: Array, step: Array, inside: Array, outside: Array, offs:
         return k + np.clip((a - at_level) / np.where(a - b == 0, 1.0, a - b), 0.0, 1.0)
     at = 0.5 * (cross(np.maximum(first - 1, 0)) + cross(last))
     ok = above[..., 0] & ~above[..., -1] & (first > 0) & (last < m - 1)
-    return offs[1] + at * STEP_PX, ok  # ``proj`` starts one sample in
+    return offs[1] + at * (offs[1] - offs[0]), ok  # ``proj`` starts one sample in
 
 
 def ramp_widths(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array, band_px: float,
-                inside: Array, outside: Array, n: int = 16) -> Array:
+                inside: Array, outside: Array, n: int = 16, step_px: float = STEP_PX) -> Array:
     """
     Return (S,) the distance px between the 25 % and 75 % crossings (from the outside to the
     inside colour) of each side's median profile across it: about half a motion-blur streak
     across the side, a pixel or two at a sharp edge. The median over the profiles along a
     side keeps the texture of the surface around it out.
     """
-    _, offs, samples = _profiles(image_bgr, lines_, ends, band_px, np.full(len(lines_), n))
+    _, offs, samples = _profiles(image_bgr, lines_, ends, band_px, np.full(len(lines_), n),
+                                 step_px)
     prof = np.median(samples, axis=1, keepdims=True)  # (S, 1, K, 3)
     step = inside - outside
     a, ok_a = _crossings(prof, step, inside, outside, offs, 0.75)
@@ -218,7 +230,8 @@ def refine(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
     :param colours: (S, 3) inside and outside colours measured before (by an earlier pass),
         instead of measuring them in the first band.
     :param blurred: edges at the mid level between those colours (``_mid_edges``: motion
-        blur), not at the steepest descent; support within 2 px (or 1 % of the side).
+        blur), not at the steepest descent, on samples ``blur_step`` apart; support within
+        2 px (or 1 % of the side).
     :returns: ((S, 3) refined lines, (S,) support: fraction of profiles whose edge is at least
         ``min_rel_strength`` of the side's median strength and within 1 px (or 0.5% of the
         side) of the refined line, (S,) colour step norm across each side, 0-255 units,
@@ -232,7 +245,8 @@ def refine(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
     step = inside = outside = np.zeros((len(lines_), 3))
     support = np.zeros(len(lines_))
     for i, band in enumerate(bands_px):
-        centres, offs, samples = _profiles(image_bgr, lines_, ends, band, ns)
+        centres, offs, samples = _profiles(image_bgr, lines_, ends, band, ns,
+                                           blur_step(band) if blurred else STEP_PX)
         if i == 0:
             inside, outside = side_colours(samples, ns) if colours is None else colours
             step = inside - outside
