@@ -169,15 +169,19 @@ def _crossings(samples: Array, step: Array, inside: Array, outside: Array, offs:
 
 
 def ramp_widths(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array, band_px: float,
-                inside: Array, outside: Array, n: int = 16, step_px: float = STEP_PX) -> Array:
+                inside: Array | None, outside: Array | None, n: int = 16,
+                step_px: float = STEP_PX) -> Array:
     """
     Return (S,) the distance px between the 25 % and 75 % crossings (from the outside to the
     inside colour) of each side's median profile across it: about half a motion-blur streak
     across the side, a pixel or two at a sharp edge. The median over the profiles along a
-    side keeps the texture of the surface around it out.
+    side keeps the texture of the surface around it out. ``inside`` and ``outside`` None: the
+    colours at the band's ends (``side_colours``).
     """
     _, offs, samples = _profiles(image_bgr, lines_, ends, band_px, np.full(len(lines_), n),
                                  step_px)
+    if inside is None or outside is None:
+        inside, outside = side_colours(samples)
     prof = np.median(samples, axis=1, keepdims=True)  # (S, 1, K, 3)
     step = inside - outside
     a, ok_a = _crossings(prof, step, inside, outside, offs, 0.75)

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from absscale_ros.core import detect, sides
+from absscale_ros.core import detect, detect_sheet, sides
 
 DATA = Path(__file__).parents[1] / 'data' / 'sim_blur'
 FRAMES = json.loads((DATA / 'frames.json').read_text())['frames']
@@ -46,3 +46,24 @@ def test_ramp_width_of_a_box_blurred_step():
     sharp = sides.ramp_widths(img, line, ends, 30.0, inside, outside)
     wide = sides.ramp_widths(blurred, line, ends, 30.0, inside, outside)
     assert sharp[0] < 2.0 and 9.0 < wide[0] < 12.0  # half the streak
+
+
+def test_ramp_width_along_a_rough_side_screens_sharp_outlines():
+    """
+    The blur retry's screen, on the rough side (3 px off, 2 degrees tilted) with the colours
+    at its band's ends and samples ``blur_step`` apart: the blurred step still ramps over
+    about half its streak, the sharp one under ``BLUR_MIN_RAMP_PX`` (not retried).
+    """
+    img = np.full((200, 200, 3), 60, np.uint8)
+    img[:, 100:] = 230
+    blurred = cv2.blur(img, (21, 1))
+    tilt = np.deg2rad(2.0)
+    line = np.array([[-np.cos(tilt), np.sin(tilt), 0.0]])
+    line[0, 2] = -line[0, :2] @ np.array([102.5, 100.0])
+    ends = np.array([[[102.5 - 60 * np.tan(tilt), 40.0], [102.5 + 60 * np.tan(tilt), 160.0]]])
+    band = 60.0
+    step = sides.blur_step(band)
+    assert step > sides.STEP_PX
+    sharp = sides.ramp_widths(img, line, ends, band, None, None, step_px=step)
+    wide = sides.ramp_widths(blurred, line, ends, band, None, None, step_px=step)
+    assert sharp[0] < detect_sheet.BLUR_MIN_RAMP_PX < 9.0 < wide[0] < 12.0
