@@ -136,13 +136,18 @@ def align(ref: Grey, img: Grey, T_ref: FloatArray, T_img: FloatArray, K: FloatAr
     plane = K @ (num[:, None, None] * R + t[:, None] * n_a[:, None, :]) @ K_inv  # (N, 3, 3)
     flat = K @ (z_pt[:, None, None] * R + np.outer(t, [0.0, 0.0, 1.0])) @ K_inv
 
-    def apply(H: FloatArray, u: FloatArray, v: FloatArray) -> tuple[FloatArray, FloatArray]:
+    def apply(H: FloatArray, u: FloatArray, v: FloatArray, dtype: type = np.float64
+              ) -> tuple[FloatArray, FloatArray]:
         """Pixels of a through the (N, 3, 3) homographies: u (N, 1, S) and v (N, R, 1) (or
-        both (N, R, S)) give (N, R, S) (separable: one full-size sum per row of H)."""
+        both (N, R, S)) give (N, R, S) of ``dtype``, the float64 quotient rounded (separable:
+        one full-size sum per row of H, into as few full-size arrays as it takes: allocating
+        them was most of the warp's time)."""
         h = H[:, :, :, None, None]
         w = h[:, 2, 0] * u + (h[:, 2, 1] * v + h[:, 2, 2])
-        return ((h[:, 0, 0] * u + (h[:, 0, 1] * v + h[:, 0, 2])) / w,
-                (h[:, 1, 0] * u + (h[:, 1, 1] * v + h[:, 1, 2])) / w)
+        t = h[:, 0, 0] * u + (h[:, 0, 1] * v + h[:, 0, 2])
+        ub = np.divide(t, w, out=np.empty(w.shape, dtype))
+        np.add(h[:, 1, 0] * u, h[:, 1, 1] * v + h[:, 1, 2], out=t)
+        return ub, np.divide(t, w, out=t if dtype is np.float64 else np.empty(w.shape, dtype))
     u_a = uv_ref[:, 0, None, None] + grid[None, None, :]  # (N, 1, s) and (N, s, 1): the tile
     v_a = uv_ref[:, 1, None, None] + grid[None, :, None]
     n_k = n_a @ K_inv  # n_a . ray = n_k . (u, v, 1): linear in the pixel
@@ -161,18 +166,17 @@ def align(ref: Grey, img: Grey, T_ref: FloatArray, T_img: FloatArray, K: FloatAr
     corners = on_plane(np.arange(n), uv_ref[:, 0, None, None] + ends[None, None, :],
                        uv_ref[:, 1, None, None] + ends[None, :, None])
     mixed = np.flatnonzero(~corners.all(axis=(1, 2)))
-    u_a = uv_ref[:, 0, None, None] + grid[None, None, :]  # (N, 1, s) and (N, s, 1): the tile
-    v_a = uv_ref[:, 1, None, None] + grid[None, :, None]
-    u_b, v_b = apply(plane, u_a, v_a)
+    f32 = np.float32
+    u_b, v_b = apply(plane, u_a, v_a, f32)  # the remap's maps
     if len(mixed):  # those patches' off-plane pixels: fronto-parallel
         ok = on_plane(mixed, u_a[mixed], v_a[mixed])
+        pu, pv = apply(plane[mixed], u_a[mixed], v_a[mixed])
         fu, fv = apply(flat[mixed], u_a[mixed], v_a[mixed])
-        u_b[mixed] = np.where(ok, u_b[mixed], fu)
-        v_b[mixed] = np.where(ok, v_b[mixed], fv)
-    f32 = np.float32
+        u_b[mixed] = np.where(ok, pu, fu)
+        v_b[mixed] = np.where(ok, pv, fv)
     A = (ref_tiles(ref, uv_ref, cfg) if tiles is None else tiles).reshape(n * s, s)
-    B = cv2.remap(img, u_b.reshape(n * s, s).astype(f32), v_b.reshape(n * s, s).astype(f32),
-                  cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    B = cv2.remap(img, u_b.reshape(n * s, s), v_b.reshape(n * s, s), cv2.INTER_LINEAR,
+                  borderMode=cv2.BORDER_REPLICATE)
     centre = np.stack([np.full(n, r + m), r + m + s * np.arange(n)], 1).astype(f32)[:, None]
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.001)
     win = (cfg.window_px, cfg.window_px)

@@ -72,7 +72,7 @@ def link(m: sfm_map.SfmMap, K: FloatArray, new: sfm_map.MapKeyframe,
     b = new.vertices
     if b is None:
         return 0
-    created = 0
+    created, labelled = 0, None
     for old in older:
         a = old.vertices
         if a is None:
@@ -89,7 +89,9 @@ def link(m: sfm_map.SfmMap, K: FloatArray, new: sfm_map.MapKeyframe,
                 b.landmark_of[j] = a.landmark_of[i]
                 m.observe(int(a.landmark_of[i]), new.kf_id, b.vertices.points_px[j])
                 continue
-            lm_id = _coinciding(m, K, old, i, new, j)
+            if labelled is None:  # once per call: the map's scan grew with it (~6 ms)
+                labelled = [k for k, lm in m.landmarks.items() if lm.label is not None]
+            lm_id = _coinciding(m, K, old, i, new, j, labelled)
             if lm_id >= 0:  # a corner seen again after a gap: the landmark it already has
                 for kf, v, k in ((old, a, i), (new, b, j)):
                     v.landmark_of[k] = lm_id
@@ -106,6 +108,8 @@ def link(m: sfm_map.SfmMap, K: FloatArray, new: sfm_map.MapKeyframe,
             m.observe(lm_id, new.kf_id, b.vertices.points_px[j])
             a.landmark_of[i] = b.landmark_of[j] = lm_id
             created += 1
+            if labelled is not None:
+                labelled.append(lm_id)
     return created
 
 
@@ -124,17 +128,18 @@ def _projects_to(m: sfm_map.SfmMap, K: FloatArray, lm_id: int, kf: sfm_map.MapKe
 
 
 def _coinciding(m: sfm_map.SfmMap, K: FloatArray, a: sfm_map.MapKeyframe, i: int,
-                b: sfm_map.MapKeyframe, j: int) -> int:
+                b: sfm_map.MapKeyframe, j: int, labelled: list[int]) -> int:
     """
     The vertex landmark of the same object that vertex ``i`` of ``a`` and ``j`` of ``b`` see
     again (-1: none): in both keyframes the landmark of that object projecting nearest the
     vertex, by less than half the way to the next one, and ``_projects_to`` it; not observed
     in either yet, nor cut from either (``SfmMap.unlinked_vertices``). A corner out of view for
     longer than the match window would otherwise become a second landmark, triangulated from a
-    few recent views only.
+    few recent views only. ``labelled``: the ids of the map's vertex landmarks, in its order
+    (some may have been merged away since).
     """
     obj = int(a.vertices.vertices.object_ids[i])
-    ids = [k for k, lm in m.landmarks.items() if lm.label is not None and lm.label[0] == obj]
+    ids = [k for k in labelled if k in m.landmarks and m.landmarks[k].label[0] == obj]
     found = -1
     points = np.array([m.landmarks[k].point_world for k in ids]).reshape(-1, 3)
     for kf, n in ((a, i), (b, j)):
