@@ -228,6 +228,11 @@ def _die_with_parent() -> None:
     """
     In a node process before it starts: end it when the runner dies. A runner killed by
     SIGTERM or SIGKILL runs no cleanup, and its nodes would go on replaying into nothing.
+    SIGINT, which ``stop`` sends, is reset to its default: a runner started in the background
+    by a non-interactive shell (``absscale run ... &`` in a script) ignores it, the ignoring is
+    inherited, and its node processes then sat out the 30 s ``stop`` gives them, were killed
+    and left no reports (a split run of each sample said no scale, twice in two runs).
     """
     libc = ctypes.CDLL(None, use_errno=True)
     libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    signal.signal(signal.SIGINT, signal.SIG_DFL)

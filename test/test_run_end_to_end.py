@@ -1,6 +1,7 @@
 """`absscale run` over a real bag: every node runs, outputs and the recording are written."""
 import json
 from pathlib import Path
+import signal
 import subprocess
 import sys
 import time
@@ -59,9 +60,12 @@ def test_processes_give_the_same_result_as_one_process(tmp_path: Path) -> None:
     reports = []
     for extra in ([], ['--processes'], ['--split']):
         out = tmp_path / (extra[0][2:] if extra else 'one')
+        # Started as a script's background job is: SIGINT ignored, which node processes
+        # inherit; they must still stop when the runner interrupts them, and report.
         done = subprocess.run([sys.executable, '-m', 'absscale_ros.cli', 'run', str(bag),
                                '--out', str(out), '--quiet', *extra],
-                              capture_output=True, text=True, timeout=300)
+                              capture_output=True, text=True, timeout=300,
+                              preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
         assert done.returncode == 1 and 'Traceback' not in done.stderr, done.stderr[-3000:]
         reports.append(json.loads((out / 'report.json').read_text()))
         warnings = [line for line in done.stderr.splitlines() if 'WARN' in line]
