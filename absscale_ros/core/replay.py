@@ -5,9 +5,17 @@ Lossless step mode works by causal acknowledgement. After a node handles a messa
 stepped topic it acknowledges (node, input topic, stamp) and names the topics it published
 for that stamp; every acking subscriber of those topics then owes an acknowledgement too.
 The step is complete when nothing is owed, i.e. the whole graph has drained that frame.
+
+A node that queues its work (the sfm with ``queue_keyframes``) names ``DEFERRED`` among its
+outputs: it then owes a second acknowledgement (node, ``DEFERRED``, stamp) naming what it
+published once it did. A step that owes nothing else no longer holds a place in the window
+(the replay goes on), but the replay is not drained until it completes.
 """
 from dataclasses import dataclass, field
 from typing import Callable, Iterable
+
+# An output that is no topic: the acknowledging node acknowledges this stamp again later.
+DEFERRED = 'deferred'
 
 
 @dataclass(frozen=True)
@@ -56,8 +64,8 @@ class StepTracker:
         self._received.clear()
         self._expect(topic)
 
-    def _expect(self, topic: str) -> None:
-        for node in self.consumers_of(topic):
+    def _expect(self, topic: str, producer: str = '') -> None:
+        for node in [producer] if topic == DEFERRED else self.consumers_of(topic):
             if (node, topic) not in self._received:
                 self.owed.add((node, topic))
 
@@ -69,12 +77,17 @@ class StepTracker:
         self._received.add(key)
         self.owed.discard(key)
         for topic in ack.outputs:
-            self._expect(topic)
+            self._expect(topic, ack.node)
         return True
 
     @property
     def done(self) -> bool:
         return self.stamp_ns is None or not self.owed
+
+    @property
+    def deferred(self) -> bool:
+        """Only deferred acknowledgements are owed (queued work; see ``DEFERRED``)."""
+        return bool(self.owed) and all(topic == DEFERRED for _, topic in self.owed)
 
     def pending(self) -> list[str]:
         return sorted(f'{n} on {t}' for n, t in self.owed)
@@ -93,7 +106,8 @@ class StepWindow:
 
     A window of 1 is strict lock-step; a larger one lets the stages of the graph work on
     different frames at the same time (the detector on frame k+1 while the SfM is busy with
-    keyframe k) while staying lossless: no more than ``size`` frames are ever queued.
+    keyframe k) while staying lossless: no more than ``size`` frames are ever queued, apart
+    from those a node queued itself and acknowledged as ``DEFERRED`` (its queue bounds them).
     Started-at times come from the caller (core reads no clock).
 
     :param consumers_of: topic -> names of the acknowledging nodes subscribed to it.
@@ -105,6 +119,9 @@ class StepWindow:
         self.size = size
         self._consumers_of = consumers_of
         self._open: dict[int, tuple[StepTracker, float]] = {}
+        # Steps that owe only what a node queued: out of the window, still to drain.
+        self._deferred: dict[int, tuple[StepTracker, float]] = {}
+        self.deferred_total = 0  # steps that were ever deferred
 
     def start(self, topic: str, stamp_ns: int, now: float) -> None:
         """A stepped message on ``topic`` stamped ``stamp_ns`` went out at ``now``."""
@@ -113,13 +130,28 @@ class StepWindow:
         if not tracker.done:
             self._open[stamp_ns] = (tracker, now)
 
-    def on_ack(self, ack: Ack) -> bool:
-        """Record ``ack``; return True if it completed a step."""
-        entry = self._open.get(ack.stamp_ns)
-        if entry is None or not entry[0].on_ack(ack) or not entry[0].done:
+    def on_ack(self, ack: Ack, now: float = 0.0) -> bool:
+        """Record ``ack`` (received at ``now``); return True if it freed a place in the window
+        (its step completed, or owes only deferred acknowledgements) or completed a deferred
+        step."""
+        for steps in (self._open, self._deferred):
+            entry = steps.get(ack.stamp_ns)
+            if entry is not None:
+                break
+        else:
             return False
-        del self._open[ack.stamp_ns]
-        return True
+        tracker = entry[0]
+        if not tracker.on_ack(ack):
+            return False
+        if tracker.done:
+            del steps[ack.stamp_ns]
+            return True
+        if steps is self._open and tracker.deferred:
+            del self._open[ack.stamp_ns]
+            self._deferred[ack.stamp_ns] = (tracker, now)  # its timeout counts from now
+            self.deferred_total += 1
+            return True
+        return False
 
     @property
     def full(self) -> bool:
@@ -127,9 +159,14 @@ class StepWindow:
 
     @property
     def empty(self) -> bool:
-        return not self._open
+        """No step in flight, deferred ones included."""
+        return not self._open and not self._deferred
 
     def expire(self, now: float, timeout_s: float) -> list[tuple[int, list[str]]]:
-        """Give up on steps open longer than ``timeout_s``; return (stamp, what was owed)."""
-        late = [s for s, (_, t) in self._open.items() if now - t >= timeout_s]
-        return [(s, self._open.pop(s)[0].pending()) for s in late]
+        """Give up on steps open (or deferred) longer than ``timeout_s``; return (stamp, what
+        was owed)."""
+        out = []
+        for steps in (self._open, self._deferred):
+            late = [s for s, (_, t) in steps.items() if now - t >= timeout_s]
+            out += [(s, steps.pop(s)[0].pending()) for s in late]
+        return out

@@ -179,8 +179,14 @@ class BagReplayNode(Node):
 
     @property
     def drained(self) -> bool:
-        """Every message is out and (step mode) every step has been acknowledged."""
+        """Every message is out and (step mode) every step has been acknowledged, deferred
+        acknowledgements included."""
         return self.finished and self._window.empty
+
+    @property
+    def steps_deferred(self) -> int:
+        """Steps whose last acknowledgements a node deferred (queued work, see core/replay)."""
+        return self._window.deferred_total
 
     def _advance_step(self) -> None:
         """Publish until the window of stepped messages in flight is full (or the bag ends)."""
@@ -202,7 +208,7 @@ class BagReplayNode(Node):
         except ValueError as err:
             self.get_logger().warning(str(err), throttle_duration_sec=5.0)
             return
-        if self._window.on_ack(ack) and self._cursor is not None:
+        if self._window.on_ack(ack, time.monotonic()) and self._cursor is not None:
             self._advance_step()
 
     def _check_step_timeout(self) -> None:

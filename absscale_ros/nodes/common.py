@@ -5,7 +5,7 @@ from typing import Any, Iterable
 
 from absscale_ros import conversions
 from absscale_ros.core.errors import BagError
-from absscale_ros.core.replay import Ack
+from absscale_ros.core.replay import Ack, DEFERRED
 from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data, QoSProfile,
                        ReliabilityPolicy)
@@ -72,13 +72,17 @@ class StepAck:
         self._pub = node.create_publisher(Header, ACK_TOPIC, RELIABLE)
 
     def ack(self, stamp: Any, input_topic: str, outputs: Iterable[str] = ()) -> None:
-        """Say that this node handled ``input_topic`` at ``stamp`` and published ``outputs``."""
+        """
+        Say that this node handled ``input_topic`` at ``stamp`` and published ``outputs``.
+        ``DEFERRED`` among the outputs: this node queued the work and acknowledges again, with
+        ``input_topic`` ``DEFERRED``, once it published its outputs.
+        """
         text = Ack(self._node.get_name(), self._resolve(input_topic), 0,
                    tuple(self._resolve(o) for o in outputs)).encode()
         self._pub.publish(conversions.ack_to_msg(text, stamp))
 
     def _resolve(self, topic: str) -> str:
-        return self._node.resolve_topic_name(topic)
+        return topic if topic == DEFERRED else self._node.resolve_topic_name(topic)
 
 
 def single_threaded_executor(context: Any = None) -> Any:

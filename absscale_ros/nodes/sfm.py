@@ -23,7 +23,7 @@ import time
 from typing import Any
 
 from absscale_ros import conversions
-from absscale_ros.core import errors, keyframes, sfm, sfm_live, sfm_outputs, sfm_session
+from absscale_ros.core import errors, keyframes, replay, sfm, sfm_live, sfm_outputs, sfm_session
 from absscale_ros.nodes import common, sfm_inputs
 from nav_msgs.msg import Path
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
@@ -59,9 +59,11 @@ class SfmNode(Node):
         self._detector = ThreadPoolExecutor(1, 'sfm_features')
         self._prefetch = sfm_live.FeaturePrefetch(self._detector.submit, 2 * p['pair_depth'] + 2)
         self._updater = ThreadPoolExecutor(1, 'sfm_update') if p['qos'] == common.LIVE else None
-        # Offline, queued: keyframes are acknowledged as they are queued and added in order on
-        # a worker, so a lossless replay feeds the nodes before the sfm (in another process)
-        # meanwhile; at most ``queue_keyframes`` wait (then the callback waits for the oldest).
+        # Offline, queued: keyframes are acknowledged as they are queued (outputs DEFERRED) and
+        # added in order on a worker, so a lossless replay feeds the nodes before the sfm (in
+        # another process) meanwhile; at most ``queue_keyframes`` wait (then the callback waits
+        # for the oldest). Each is acknowledged again with its outputs once published, and the
+        # replay has drained only when their subscribers acknowledged those too.
         self._queued: deque['Future[list[str]]'] = deque()
         self._queue_depth = p['queue_keyframes'] if self._updater is None else 0
         self._queue = ThreadPoolExecutor(1, 'sfm_queue') if self._queue_depth > 0 else None
@@ -103,12 +105,21 @@ class SfmNode(Node):
             while self._queued and (self._queued[0].done() or
                                     len(self._queued) >= self._queue_depth):
                 self._queued.popleft().result()  # an update's exception is raised here
-            self._queued.append(self._queue.submit(self._process, *item))
-            return []  # taken: the replay goes on; what it publishes is acknowledged downstream
+            self._queued.append(self._queue.submit(self._process_queued, item))
+            return [replay.DEFERRED]  # taken: the replay goes on, and waits for it at the end
         if self.live is None:
             return self._process(*item)
         self.live.offer(conversions.stamp_to_ns(item[0].header.stamp), item)
         return None
+
+    def _process_queued(self, item: Item) -> list[str]:
+        """On the queue's worker: map one keyframe, then acknowledge what it published."""
+        outputs: list[str] = []
+        try:
+            outputs = self._process(*item)
+        finally:  # an update that raised is re-raised in _handle; the replay need not wait
+            self._inputs.ack_deferred(item[0].header.stamp, outputs)
+        return outputs
 
     def _skip(self, stamp_ns: int, item: Item) -> keyframes.TrackedStep | None:
         """Live: a keyframe the map will not see; its step, to chain."""

@@ -5,7 +5,7 @@ never pairs acknowledged, so a lossless replay goes on), and the map's output me
 from typing import Any, Callable
 
 from absscale_ros import conversions
-from absscale_ros.core import pairing, sfm_outputs, sfm_session
+from absscale_ros.core import pairing, replay, sfm_outputs, sfm_session
 from absscale_ros.nodes import common
 from geometry_msgs.msg import TransformStamped
 from rclpy.node import Node
@@ -21,7 +21,8 @@ class KeyframeInputs:
 
     :param on_image: called with (stamp_ns, image) as a keyframe's image arrives.
     :param handle: called with each paired keyframe; returns the topics it published (its
-        inputs are then acknowledged), or None (the live worker has it: no acknowledgement).
+        inputs are then acknowledged; ``replay.DEFERRED`` if queued, see ``ack_deferred``), or
+        None (the live worker has it: no acknowledgement).
     :param count: counts keyframes that never reach the map ('unpaired', 'no_tracked_step').
     """
 
@@ -83,6 +84,11 @@ class KeyframeInputs:
         self._ack.ack(vertices.header.stamp, self._kv_sub.topic_name, outputs)
         if motion is not None:
             self._ack.ack(motion.header.stamp, self._motion_sub.topic_name, outputs)
+
+    def ack_deferred(self, stamp: Any, outputs: list[str]) -> None:
+        """A queued keyframe's second acknowledgement: the topics published for it (its
+        inputs were acknowledged with ``replay.DEFERRED``)."""
+        self._ack.ack(stamp, replay.DEFERRED, outputs)
 
 
 def map_messages(session: sfm_session.SfmSession, stamp_ns: int,

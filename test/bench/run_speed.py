@@ -3,7 +3,7 @@ Time ``absscale run`` on a bag for one or more code trees, interleaved, so that 
 noisy machine loads them alike (the ratio is the figure; absolute seconds drift with load).
 
   python test/bench/run_speed.py BAG --config outdoor_cube --tree base=/tmp/base \
-      --tree new=. [--processes] [--live] [--rounds 2]
+      --tree new=. [--processes | --split] [--live] [--rounds 2]
 
 Per run: wall time of the command, the replay's wall time and peak RSS from report.json, CPU
 time of the run and its node processes, and for --live the frames each node dropped and the
@@ -37,6 +37,7 @@ def run_once(tree: Path, bag: str, config: str, extra: list[str]) -> dict:
         'exit': done.returncode, 'wall_s': round(wall, 1),
         'replay_s': report.get('wall_time_s'),
         'cpu_s': round(after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime, 1),
+        'process_cpu_s': report.get('process_cpu_s'),  # per process: runner, node groups
         'peak_rss_mb': report.get('peak_rss_mb'),
         'frames_decoded': nodes.get('frame_ingest', {}).get('frames_decoded'),
         'frames_missing': nodes.get('frame_ingest', {}).get('frames_missing'),
@@ -44,6 +45,7 @@ def run_once(tree: Path, bag: str, config: str, extra: list[str]) -> dict:
         'keyframes': nodes.get('keyframe_selector', {}).get('keyframes'),
         'sfm_keyframes_in': nodes.get('sfm', {}).get('keyframes_in'),
         'scale': nodes.get('scale', {}).get('factor'),
+        'steps_deferred': report.get('replay', {}).get('steps_deferred'),
         'latency_s': report.get('latency_s'),
         'last_line': (done.stdout.strip().splitlines() or [''])[-1][:200],
     }
@@ -57,10 +59,11 @@ def main() -> int:
                         help='NAME=PATH of a source tree (repeat; the first is the baseline)')
     parser.add_argument('--rounds', type=int, default=1)
     parser.add_argument('--processes', action='store_true')
+    parser.add_argument('--split', action='store_true')
     parser.add_argument('--live', action='store_true')
     args = parser.parse_args()
     trees = [t.split('=', 1) for t in args.tree]
-    extra = (['--processes'] if args.processes else []) + (['--live'] if args.live else [])
+    extra = [f'--{flag}' for flag in ('processes', 'split', 'live') if getattr(args, flag)]
     results: dict[str, list[dict]] = {name: [] for name, _ in trees}
     for _ in range(args.rounds):
         for name, path in trees:

@@ -1,5 +1,5 @@
 """Causal step tracking: a step completes only when every acking consumer has drained it."""
-from absscale_ros.core.replay import Ack, due_wall_ns, StepTracker, StepWindow
+from absscale_ros.core.replay import Ack, DEFERRED, due_wall_ns, StepTracker, StepWindow
 import pytest
 
 GRAPH = {
@@ -97,3 +97,38 @@ def test_window_expires_only_steps_older_than_the_timeout() -> None:
     assert not w.empty and w.expire(now=10.0, timeout_s=8.0) == []
     with pytest.raises(ValueError):
         StepWindow(lambda topic: [], size=0)
+
+
+QUEUED = {**GRAPH, '/map': ['scale']}
+
+
+def test_deferred_step_leaves_the_window_but_not_the_drain() -> None:
+    """A node that queues its work acknowledges DEFERRED: the window goes on without it, but
+    the replay is not drained until its second acknowledgement and its outputs' consumers."""
+    w = StepWindow(lambda topic: QUEUED.get(topic, []), size=1)
+    w.start('/keyframes', 1, now=0.0)
+    assert w.full
+    assert w.on_ack(Ack('sfm', '/keyframes', 1, (DEFERRED,)), now=1.0)  # queued: a place frees
+    assert not w.full and not w.empty and w.deferred_total == 1
+    assert not w.on_ack(Ack('sfm', DEFERRED, 1, ('/map',)))  # published: scale owes /map
+    assert not w.empty
+    assert w.on_ack(Ack('scale', '/map', 1))
+    assert w.empty
+
+
+def test_deferred_ack_overtaking_the_first_one_is_not_lost() -> None:
+    """The queue's worker can acknowledge before the callback that queued it does."""
+    t = StepTracker(lambda topic: QUEUED.get(topic, []))
+    t.start('/keyframes', 2)
+    t.on_ack(Ack('sfm', DEFERRED, 2, ()))  # e.g. a keyframe dropped at once, no outputs
+    t.on_ack(Ack('sfm', '/keyframes', 2, (DEFERRED,)))
+    assert t.done
+
+
+def test_deferred_step_expires_counted_from_when_it_was_deferred() -> None:
+    w = StepWindow(lambda topic: QUEUED.get(topic, []), size=2)
+    w.start('/keyframes', 3, now=0.0)
+    w.on_ack(Ack('sfm', '/keyframes', 3, (DEFERRED,)), now=9.0)
+    assert w.expire(now=10.0, timeout_s=5.0) == []
+    assert w.expire(now=14.5, timeout_s=5.0) == [(3, ['sfm on deferred'])]
+    assert w.empty
