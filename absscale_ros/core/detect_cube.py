@@ -8,9 +8,11 @@ Hough vote at 2 degree resolution over the face outline (a 3 px wide rho strip t
 slight curvature of lens distortion) and refined to sub-pixel on the full-resolution colour
 mask. Corners of different faces that meet are merged into one cube vertex: the point nearest
 (least squares) to all the edges meeting there, as the paper does when three edges do not
-meet exactly. Faces sharing an edge form one cube. A face the image border cuts along one side
-keeps its other sides and the corners between them; sharp, it also poses the cube, completed
-from its whole side (``cube_geometry.complete_cut``).
+meet exactly. Faces sharing an edge form one cube. A face the image border cuts along one
+side keeps its other sides and the corners between them; sharp, it also poses the cube,
+completed from its whole side (``cube_geometry.complete_cut``). When no cube is found, the
+regions that fail the tests or the refinement are cut into faces (``cube_split``: a face
+joined in the mask with a box of its own colour) and the cube looked for again.
 """
 from dataclasses import dataclass
 
@@ -18,8 +20,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from absscale_ros.core import (cube_assembly, cube_geometry, cube_strips, lines, sides,
-                               targets)
+from absscale_ros.core import (cube_assembly, cube_geometry, cube_split, cube_strips, lines,
+                               sides, targets)
 
 Array = npt.NDArray[np.float64]
 # The blur retry (``_smeared``): a face must ramp over this share of the band, and alike on
@@ -66,6 +68,12 @@ class CubeConfig:
         again as motion-blurred ramps (mid-level crossings), this far either way of the
         rough side, one pass per band until a cube is found (empty turns it off; a wide
         band alone misses short ramps next to another edge).
+    :param split_regions: when no cube is found, cut each colour region that failed the face
+        tests or the refinement into faces (``cube_split``: a face joined with a box of its
+        own colour) and look again.
+    :param split_canny: (low, high) Canny thresholds on the work image of that cut's edges.
+    :param split_min_depth_px: smallest depth of a concave corner of a region's outline the
+        cut goes along a side from, work-image px.
     """
 
     hue_red_deg: tuple[float, float] = (340.0, 20.0)
@@ -89,6 +97,9 @@ class CubeConfig:
     shape_tol_frac: float = 0.04
     focal_fracs: tuple[float, ...] = (0.5, 0.7, 0.9, 1.2, 1.6)
     blur_bands_px: tuple[float, ...] = (12.0, 24.0)
+    split_regions: bool = True
+    split_canny: tuple[float, float] = (40.0, 80.0)
+    split_min_depth_px: float = 3.0
 
     def __post_init__(self) -> None:
         for name in ('hue_red_deg', 'hue_yellow_deg', 'hue_purple_deg'):
@@ -99,6 +110,11 @@ class CubeConfig:
             raise ValueError(f'min_area_frac must be in (0, 1), got {self.min_area_frac}')
         if not 0.0 <= self.roundness_min < self.roundness_max <= 1.0:
             raise ValueError('need 0 <= roundness_min < roundness_max <= 1')
+        if not 0.0 <= self.split_canny[0] <= self.split_canny[1]:
+            raise ValueError(f'split_canny must be (low, high), 0 <= low <= high, '
+                             f'got {self.split_canny}')
+        if self.split_min_depth_px <= 0.0:
+            raise ValueError(f'split_min_depth_px must be > 0, got {self.split_min_depth_px}')
         if not 1 <= self.min_faces <= 3:
             raise ValueError(f'min_faces must be 1, 2 or 3, got {self.min_faces}')
 
@@ -160,9 +176,13 @@ def colour_masks(hsv: npt.NDArray[np.uint8], cfg: CubeConfig
             for bit, c in enumerate(cfg.hue_ranges())}
 
 
-def _face_quads(mask: npt.NDArray[np.uint8], cfg: CubeConfig, scale: float = 1.0
-                ) -> list[tuple[Array, npt.NDArray[np.int32]]]:
-    """Return (rough quad, contour) of mask components that pass the paper's tests."""
+def _face_quads(mask: npt.NDArray[np.uint8], cfg: CubeConfig, scale: float = 1.0,
+                failed: list[npt.NDArray[np.int32]] | None = None
+                ) -> tuple[list[tuple[Array, npt.NDArray[np.int32]]], npt.NDArray[np.uint8]]:
+    """
+    Return (rough quad, contour) of mask components that pass the paper's tests, and the
+    opened mask; add to ``failed`` the contours of those big enough that fail the others.
+    """
     kernel = np.ones((3, 3), np.uint8)
     # The paper's opening is on the full image: on a work image ``scale`` times as big, as
     # many 3x3 passes remove as thin a strip (a face seen almost edge-on survives).
@@ -171,23 +191,34 @@ def _face_quads(mask: npt.NDArray[np.uint8], cfg: CubeConfig, scale: float = 1.0
     min_area = cfg.min_face_area_frac * mask.shape[0] * mask.shape[1]
     out: list[tuple[Array, npt.NDArray[np.int32]]] = []
     if cv2.countNonZero(mask) < min_area:
-        return out
+        return out, mask
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     for c in contours:
-        area, perim = cv2.contourArea(c), cv2.arcLength(c, True)
-        # The paper's area is a pixel count: the outline through boundary pixel centres
-        # misses about half a pixel all round (perimeter / 2) plus the four corner quarters.
-        if area + 0.5 * perim + 1.0 < min_area:
+        passed = _face_test(c, cfg, min_area)
+        if passed is None:
             continue
-        roundness = 4.0 * np.pi * area / max(perim, 1e-9) ** 2  # eq. 1 on the outline polygon
-        if not cfg.roundness_min <= roundness <= cfg.roundness_max:
-            continue
-        if area < cfg.min_solidity * cv2.contourArea(cv2.convexHull(c)):
-            continue
-        quad = lines.rough_quad(c)
+        quad = lines.rough_quad(c) if passed else None
         if quad is not None:
             out.append((quad, c))
-    return out
+        elif failed is not None:
+            failed.append(c)
+    return out, mask
+
+
+def _face_test(contour: npt.NDArray[np.int32], cfg: CubeConfig, min_area: float
+               ) -> bool | None:
+    """
+    Return True when a component's outline passes the paper's tests, False when only its
+    roundness or convexity fails, None when it is too small.
+    """
+    area, perim = cv2.contourArea(contour), cv2.arcLength(contour, True)
+    # The paper's area is a pixel count: the outline through boundary pixel centres
+    # misses about half a pixel all round (perimeter / 2) plus the four corner quarters.
+    if area + 0.5 * perim + 1.0 < min_area:
+        return None
+    roundness = 4.0 * np.pi * area / max(perim, 1e-9) ** 2  # eq. 1 on the outline polygon
+    return bool(cfg.roundness_min <= roundness <= cfg.roundness_max and
+                area >= cfg.min_solidity * cv2.contourArea(cv2.convexHull(contour)))
 
 
 def _hough_sides(faces: list[tuple[Array, Array]], cfg: CubeConfig) -> list[Array]:
@@ -216,8 +247,18 @@ def _hough_sides(faces: list[tuple[Array, Array]], cfg: CubeConfig) -> list[Arra
 
 def _refine_faces(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array, Array]],
                   cfg: CubeConfig, blur_band_px: float = 0.0) -> list[Face]:
+    """Return the faces of ``rough`` that ``_refine_each`` keeps."""
+    return [f for f in _refine_each(image_bgr, rough, cfg, blur_band_px) if f is not None]
+
+
+def _refine_each(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array, Array]],
+                 cfg: CubeConfig, blur_band_px: float = 0.0, pieces: bool = False
+                 ) -> list[Face | None]:
     """
-    Refine every face's sides on the full-resolution colour step across each of them.
+    Refine every face's sides on the full-resolution colour step across each of them; per
+    rough face its refined face or None (with ``blur_band_px``: the faces kept only).
+    ``pieces`` for faces cut from a region (``_split_faces``): each side's colour step is
+    the larger of its two halves' (along the object it was cut from, it has none).
 
     All sides of all faces go through one ``sides.refine`` call (each on its own colour step:
     red-yellow, red-background... differ).
@@ -237,9 +278,10 @@ def _refine_faces(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array
         refined, supports, steps, inside, outside = sides.refine(
             image_bgr, side_lines, ends, (4.0, 2.5), n, colours=colours, blurred=True)
     else:
-        refined, supports, steps, inside, outside = sides.refine(image_bgr, side_lines, ends,
-                                                                 (6.0, 4.0, 2.5), n)
-    faces = []
+        refined, supports, steps, inside, outside = sides.refine(
+            image_bgr, side_lines, ends, (6.0, 4.0, 2.5), n,
+            colours=_half_colours(image_bgr, side_lines, ends, n) if pieces else None)
+    faces: list[Face | None] = []
     h, w = image_bgr.shape[:2]
     for f, (colour, hough, quad) in enumerate(rough):
         ls, sup = refined[4 * f:4 * f + 4].copy(), supports[4 * f:4 * f + 4].copy()
@@ -247,6 +289,7 @@ def _refine_faces(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array
         cut = None if blur_band_px > 0.0 else _border_side(quad, w, h)
         if cut is not None:  # no colour step to find there: the border's own line
             ls[cut[0]], real[cut[0]] = cut[1], False
+        faces.append(None)  # until it passes
         if steps[4 * f:4 * f + 4][real].min() < cfg.min_step or \
                 sup[real].min() < cfg.min_support:
             continue
@@ -267,9 +310,24 @@ def _refine_faces(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array
             image_bgr, ls[real], np.stack([corners, np.roll(corners, -1, axis=0)], 1)[real],
             6.0, inside[4 * f:4 * f + 4][real], outside[4 * f:4 * f + 4][real]).max() \
             > CUT_MAX_RAMP_PX
-        faces.append(Face(colour, corners, ls, sup, runs_on=bool(smeared),
-                          cut=-1 if cut is None else cut[0]))
+        faces[-1] = Face(colour, corners, ls, sup, runs_on=bool(smeared),
+                         cut=-1 if cut is None else cut[0])
     return faces
+
+
+def _half_colours(image_bgr: npt.NDArray[np.uint8], side_lines: Array, ends: Array, n: int
+                  ) -> tuple[Array, Array]:
+    """
+    Return (S, 3) inside and outside colours of each side, from whichever of its two halves
+    shows the larger colour step (``sides.refine``'s first band).
+    """
+    mid = ends.mean(axis=1)
+    halves = np.concatenate([np.stack([ends[:, 0], mid], 1), np.stack([mid, ends[:, 1]], 1)])
+    *_, steps, inside, outside = sides.refine(image_bgr, np.concatenate([side_lines] * 2),
+                                              halves, (6.0,), max(6, n // 2))
+    s = len(side_lines)
+    pick = np.where(steps[:s] >= steps[s:], np.arange(s), np.arange(s) + s)
+    return inside[pick], outside[pick]
 
 
 def _border_side(quad: Array, w: int, h: int) -> tuple[int, Array] | None:
@@ -332,6 +390,13 @@ def rough_faces(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
     Return (colour, (4, 3) Hough side lines, (4, 2) rough quad px) of every face-like region
     (the mask stage of ``detect_faces``), full-resolution px.
     """
+    return _rough(image_bgr, cfg, half)[0]
+
+
+def _rough(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
+           half: npt.NDArray[np.uint8] | None = None
+           ) -> tuple[list[tuple[str, Array, Array]], '_Regions']:
+    """Return ``rough_faces`` and the mask regions behind them, for ``_split_faces``."""
     h, w = image_bgr.shape[:2]
     scale = min(1.0, cfg.work_max_side_px / max(h, w))
     size = (round(w * scale), round(h * scale))
@@ -341,12 +406,66 @@ def rough_faces(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
         work = cv2.resize(image_bgr, size, interpolation=cv2.INTER_AREA)
     hsv = cv2.cvtColor(work, cv2.COLOR_BGR2HSV)
     found = []  # (colour, rough quad, outline), full-resolution px
+    regions = _Regions(work, scale, [])
     for colour, mask in colour_masks(hsv, cfg).items():
-        for quad, contour in _face_quads(mask, cfg, scale):
-            found.append((colour, (quad + 0.5) / scale - 0.5,
-                          (contour.reshape(-1, 2).astype(np.float64) + 0.5) / scale - 0.5))
+        failed: list[npt.NDArray[np.int32]] = []
+        quads, opened = _face_quads(mask, cfg, scale, failed)
+        for quad, contour in quads:
+            regions.items.append((colour, contour, opened, len(found)))
+            found.append((colour, (quad + 0.5) / scale - 0.5, _full_px(contour, scale)))
+        regions.items.extend((colour, c, opened, -1) for c in failed)
     hough = _hough_sides([(q, c) for _, q, c in found], cfg)
-    return [(c, h, q) for (c, q, _), h in zip(found, hough)]
+    return [(c, h, q) for (c, q, _), h in zip(found, hough)], regions
+
+
+def _full_px(contour: npt.NDArray[np.int32], scale: float) -> Array:
+    """Return a work-image outline (N, 1, 2) as (N, 2) full-resolution px."""
+    return (contour.reshape(-1, 2).astype(np.float64) + 0.5) / scale - 0.5
+
+
+@dataclass(frozen=True, eq=False)
+class _Regions:
+    """
+    The work image, its scale, and per mask region (colour, outline work px, opened colour
+    mask, index of its rough face or -1 when it failed the face tests).
+    """
+
+    work: npt.NDArray[np.uint8]
+    scale: float
+    items: list[tuple[str, npt.NDArray[np.int32], npt.NDArray[np.uint8], int]]
+
+
+def _split_faces(image_bgr: npt.NDArray[np.uint8], regions: _Regions,
+                 refined: list[Face | None], cfg: CubeConfig) -> list[Face]:
+    """
+    Return the refined faces of the pieces (``cube_split``) of every region that failed the
+    face tests or whose face failed the refinement, and that touches a region of another
+    cube colour (a cube shows two faces at least: a red building on its own is left alone).
+    """
+    passes = max(1, int(round(cfg.opening_iterations * regions.scale)))
+    min_area = cfg.min_face_area_frac * regions.work.shape[0] * regions.work.shape[1]
+
+    def face_quad(c: npt.NDArray[np.int32]) -> Array | None:
+        return lines.rough_quad(c) if _face_test(c, cfg, min_area) else None
+    boxes = np.array([cv2.boundingRect(c) for _, c, _, _ in regions.items]).reshape(-1, 4)
+    lo, hi = boxes[:, :2] - 2, boxes[:, :2] + boxes[:, 2:] + 2
+    near = (lo[:, None] <= hi[None]).all(axis=2) & (lo[None] <= hi[:, None]).all(axis=2)
+    colours = np.array([c for c, _, _, _ in regions.items])
+    near &= colours[:, None] != colours[None, :]
+    found = []
+    for r, (colour, contour, mask, f) in enumerate(regions.items):
+        if (f >= 0 and refined[f] is not None) or not near[r].any():
+            continue
+        for piece in cube_split.split(contour, mask, regions.work, face_quad, cfg.split_canny,
+                                      cfg.split_min_depth_px, passes):
+            quad = lines.rough_quad(piece)
+            found.append((colour, (quad + 0.5) / regions.scale - 0.5,
+                          _full_px(piece, regions.scale)))
+    if not found:
+        return []
+    hough = _hough_sides([(q, c) for _, q, c in found], cfg)
+    rough = [(c, h, q) for (c, q, _), h in zip(found, hough)]
+    return [f for f in _refine_each(image_bgr, rough, cfg, pieces=True) if f is not None]
 
 
 def _strips(image_bgr: npt.NDArray[np.uint8], faces: list[Face], cfg: CubeConfig
@@ -381,10 +500,17 @@ def detect_cubes(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
     :returns: one detection per cube, with vertices, ids (see ``targets``), edges and
         per-face polygons.
     """
-    rough = rough_faces(image_bgr, cfg, half)
+    rough, regions = _rough(image_bgr, cfg, half)
     Ks = [K] if K is not None else [cube_geometry.default_K(image_bgr.shape, f)
                                     for f in cfg.focal_fracs]
-    out = _cubes(image_bgr, _refine_faces(image_bgr, rough, cfg), cfg, Ks)
+    refined = _refine_each(image_bgr, rough, cfg)
+    faces = [f for f in refined if f is not None]
+    out = _cubes(image_bgr, list(faces), cfg, Ks)
+    if not out and cfg.split_regions:
+        # A face joined with an object of its own colour: cut such regions into faces.
+        split = _split_faces(image_bgr, regions, refined, cfg)
+        if split:
+            out = _cubes(image_bgr, faces + split, cfg, Ks)
     for band in cfg.blur_bands_px if rough else ():
         if out:
             break

@@ -1,6 +1,6 @@
 """Cubes under motion blur (the detector's blur retry) and thin faces, on simulator frames."""
-import json
 from pathlib import Path
+import sys
 
 import cv2
 import numpy as np
@@ -8,30 +8,18 @@ import pytest
 
 from absscale_ros.core import detect_cube
 
-DATA = Path(__file__).parents[1] / 'data' / 'sim_cube_blur'
-FRAMES = {f['file']: f for f in json.loads((DATA / 'frames.json').read_text())['frames']}
+sys.path.insert(0, str(Path(__file__).parent))
+import sim_cube_frames  # noqa: E402
+
+FRAMES = sim_cube_frames.frames('sim_cube_blur')
 BLURRED = ['outdoor_cube_1_05.jpg', 'outdoor_cube_3_05.jpg', 'outdoor_cube_2_69.jpg']
 
 
 def _cubes(name, **kw):
-    fr = FRAMES[name]
-    img = cv2.imread(str(DATA / name))
-    return fr, detect_cube.detect_cubes(img, detect_cube.CubeConfig(**kw), np.array(fr['K']))
+    return sim_cube_frames.cubes('sim_cube_blur', name, **kw)
 
 
-def _errors(fr, det):
-    """Per detected vertex: px to the nearest true visible vertex, and that vertex's edge."""
-    true = np.array([v if v is not None and vis else [np.nan, np.nan]
-                     for v, vis in zip(fr['vertices_px'], fr['vertex_visible'])], float)
-    out = []
-    for p in det.vertices_px:
-        d = np.hypot(*(true - p).T)
-        i = int(np.nanargmin(d))
-        nbrs = [b if a == i else a for a, b in fr['edges'] if i in (a, b)]
-        edge = max(np.hypot(*(np.array(fr['vertices_px'][j]) - true[i]))
-                   for j in nbrs if fr['vertices_px'][j] is not None)
-        out.append((d[i], edge))
-    return np.array(out)
+_errors = sim_cube_frames.errors
 
 
 @pytest.mark.parametrize('name', BLURRED)
