@@ -63,7 +63,8 @@ def test_queued_keyframes_drain_only_once_a_slow_consumer_handled_their_outputs(
     replay = BagReplayNode(context=context, parameter_overrides=[
         Parameter(k, value=v) for k, v in {
             'bag': str(bag), 'mode': 'step', 'step_topics': '/absscale/keyframes',
-            'step_window': 4, 'expect_nodes': 'sfm,step_sink'}.items()])
+            'step_window': 4, 'expect_nodes': 'sfm,step_sink',
+            'step_timeout_s': 60.0}.items()])  # a loaded machine: no step given up
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(replay)
     executor.add_node(sfm)
@@ -72,17 +73,18 @@ def test_queued_keyframes_drain_only_once_a_slow_consumer_handled_their_outputs(
     sink_executor = SingleThreadedExecutor(context=context)
     sink_executor.add_node(sink)
     spinning = threading.Thread(target=lambda: spin_until(
-        sink_executor, lambda: replay.drained or not context.ok(), timeout_s=120.0))
+        sink_executor, lambda: replay.drained or not context.ok(), timeout_s=300.0))
     spinning.start()
     try:
-        assert spin_until(executor, lambda: replay.drained, timeout_s=120.0)
+        assert spin_until(executor, lambda: replay.drained, timeout_s=300.0)
         # Drained means handled: every keyframe's target points reached the slow consumer.
         # (Acknowledged with no outputs once queued, the replay had drained while the sfm
         # was still mapping the last queued keyframes.)
         assert sink.count == count
         assert replay.steps == count and replay.timeouts == 0
-        assert replay.steps_deferred >= count - 1  # the queue was on (the first may be mapped
-        # before its acknowledgement goes out)
+        # The queue was on. Not every step need be deferred: the worker (GTSAM holds the GIL)
+        # can map a keyframe and acknowledge it before the callback that queued it does.
+        assert replay.steps_deferred >= 1
         assert sfm.report()['keyframes_registered'] == count
     finally:
         spinning.join()
