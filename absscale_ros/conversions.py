@@ -791,6 +791,11 @@ def ack_to_msg(text: str, stamp: Any) -> Header:
     return Header(stamp=stamp, frame_id=text)
 
 
+def end_of_bag_msg(stamp_ns: int) -> Header:
+    """The lossless replay's end-of-bag message, stamped after every frame (``bag_replay``)."""
+    return Header(stamp=ns_to_stamp(stamp_ns), frame_id='end_of_bag')
+
+
 def ack_from_msg(msg: Any) -> tuple[str, int]:
     """Inverse of :func:`ack_to_msg`: (text, stamp in ns)."""
     return str(msg.frame_id), stamp_to_ns(msg.stamp)

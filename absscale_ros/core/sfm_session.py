@@ -37,6 +37,7 @@ class SfmSession:
         # against the same motion the live map did.
         self.keyframe_steps: list[dict[str, Any] | None] = []
         self.features_prefetched = 0  # keyframes whose features came from the worker
+        self.final_batch_ms: float | None = None  # ``finish``, once run
         # Re-entrant: held while the map changes, so a report from another thread reads it whole.
         self._lock = threading.RLock()
 
@@ -76,6 +77,19 @@ class SfmSession:
             self.count(self.last.status)
             return self.last
 
+    def finish(self) -> sfm.UpdateResult | None:
+        """
+        The final batch adjustment of every segment, to convergence (an offline run's end:
+        without it the map is as far as the last periodic batch got); None: no map.
+        """
+        with self._lock:
+            if self.engine is None:
+                return None
+            t0 = self._clock_s()
+            self.last = self.engine.finish()
+            self.final_batch_ms = 1e3 * (self._clock_s() - t0)
+            return self.last
+
     def adjust_if_due(self, stop: Callable[[], bool] | None = None) -> bool:
         """Run the batch adjustment that deferred updates left out, if due; whether it ran.
         ``stop``: asked between its steps whether to pause it (a keyframe waits)."""
@@ -105,6 +119,8 @@ class SfmSession:
                                'update_ms_median': float(np.median(times)),
                                'update_ms_p95': float(np.percentile(times, 95)),
                                'statuses': dict(self.statuses)}
+        if self.final_batch_ms is not None:
+            out['final_batch_ms'] = round(self.final_batch_ms, 1)
         if full_rms:  # the whole run (not in every keyframe's diagnostics)
             out['update_ms'] = [round(t, 1) for t in self.times_ms]
             out['keyframe_stamps_ns'] = list(self.keyframe_stamps_ns)

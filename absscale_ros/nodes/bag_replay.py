@@ -3,7 +3,11 @@ bag_replay: publish a bag's topics with their original types and bytes.
 
 Modes: ``rate`` (bag timing times ``rate``), ``fast`` (as fast as possible, may overrun slow
 subscribers), ``step`` (lossless: the next stepped message goes out only when every
-acknowledging node downstream has handled the previous one; see core/replay.py).
+acknowledging node downstream has handled the previous one; see core/replay.py). In step mode,
+once every frame is acknowledged, one more step goes out on ``end_topic`` (std_msgs/Header
+stamped after the last frame): nodes that keep state to the end (the sfm's final batch
+adjustment) answer it with their last outputs, and the replay is drained when those are
+acknowledged too (at most ``end_timeout_s``).
 """
 import time
 from typing import Any, Callable
@@ -36,7 +40,8 @@ class BagReplayNode(Node):
             ('start_offset_s', 0.0), ('loop', False), ('step_topics', ''),
             ('step_timeout_s', 10.0), ('expect_nodes', ''), ('qos', 'reliable'),
             ('progress_period_s', 5.0), ('startup_timeout_s', 5.0), ('settle_s', 0.0),
-            ('observer', ''), ('observer_images', True), ('step_window', 1)])
+            ('observer', ''), ('observer_images', True), ('step_window', 1),
+            ('end_topic', common.END_OF_BAG_TOPIC), ('end_timeout_s', 300.0)])
         self._p = {x.name: x.value for x in p}
         if self._p['mode'] not in ('rate', 'fast', 'step'):
             raise ValueError(f"mode must be rate, fast or step, not {self._p['mode']!r}")
@@ -50,6 +55,12 @@ class BagReplayNode(Node):
         self._stepped = set(_csv(self._p['step_topics'])) or {
             t for t, i in self._infos.items() if i.msgtype in IMAGE_TYPES}
         self._window = replay.StepWindow(self._consumers_of, int(self._p['step_window']))
+        stepped_end = self._p['mode'] == 'step' and bool(self._p['end_topic'])
+        self._end_pub = self.create_publisher(Header, self._p['end_topic'], common.RELIABLE) \
+            if stepped_end else None
+        self._end = replay.StepWindow(self._consumers_of)  # the end-of-bag step
+        self._end_sent = not stepped_end
+        self._last_stamp = 0
         self._consumers: dict[str, list[str]] = {}
         self.total = sum(i.count for i in self._infos.values())
         self.published = self.steps = self.timeouts = 0
@@ -180,8 +191,8 @@ class BagReplayNode(Node):
     @property
     def drained(self) -> bool:
         """Every message is out and (step mode) every step has been acknowledged, deferred
-        acknowledgements included."""
-        return self.finished and self._window.empty
+        acknowledgements and the end of the bag's included."""
+        return self.finished and self._window.empty and self._end_sent and self._end.empty
 
     @property
     def steps_deferred(self) -> int:
@@ -200,7 +211,18 @@ class BagReplayNode(Node):
                 stamp = msg.stamp_ns if stamp is None else stamp
                 self._window.start(self._pubs[msg.topic].topic_name, stamp, time.monotonic())
                 self.published_at[stamp] = time.monotonic_ns()
+                self._last_stamp = max(self._last_stamp, stamp)
                 self.steps += 1
+        if self.finished and self._window.empty and not self._end_sent:
+            self._send_end()
+
+    def _send_end(self) -> None:
+        """The end-of-bag step, stamped after every frame (answered by whoever subscribes)."""
+        assert self._end_pub is not None
+        self._end_sent = True
+        stamp = self._last_stamp + 1
+        self._end_pub.publish(conversions.end_of_bag_msg(stamp))
+        self._end.start(self._end_pub.topic_name, stamp, time.monotonic())
 
     def _on_ack(self, msg: Header) -> None:
         try:
@@ -210,14 +232,18 @@ class BagReplayNode(Node):
             return
         if self._window.on_ack(ack, time.monotonic()) and self._cursor is not None:
             self._advance_step()
+        self._end.on_ack(ack)
 
     def _check_step_timeout(self) -> None:
-        for stamp, pending in self._window.expire(time.monotonic(), self._p['step_timeout_s']):
-            self.timeouts += 1
-            self.get_logger().warning(
-                f'frame {stamp}: no acknowledgement from {", ".join(pending)} '
-                f'after {self._p["step_timeout_s"]} s; moving on')
-            self._consumers.clear()  # the graph may have changed
+        now = time.monotonic()
+        for what, window, timeout in (('frame', self._window, self._p['step_timeout_s']),
+                                      ('end of bag', self._end, self._p['end_timeout_s'])):
+            for stamp, pending in window.expire(now, timeout):
+                self.timeouts += 1
+                self.get_logger().warning(
+                    f'{what} {stamp}: no acknowledgement from {", ".join(pending)} '
+                    f'after {timeout} s; moving on')
+                self._consumers.clear()  # the graph may have changed
 
     def _take(self) -> bagio.BagMessage | None:
         assert self._cursor is not None

@@ -12,6 +12,9 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data,
 from std_msgs.msg import Header
 
 ACK_TOPIC = '/absscale/ack'
+# Offline (step mode), once every frame is acknowledged: one more step that the nodes holding
+# state until the end (the sfm's final batch adjustment) answer with their last outputs.
+END_OF_BAG_TOPIC = '/absscale/end_of_bag'
 # Offline runs are lossless: reliable, and deep enough for the non-stepped messages that
 # travel between two stepped frames (camera_info, diagnostics).
 RELIABLE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,

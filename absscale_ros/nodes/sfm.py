@@ -12,6 +12,9 @@ vertex landmarks seen under at least ``vertices.publish_min_angle_deg``) and
 ``/diagnostics``. A keyframe's features are detected on a worker thread as soon as its image
 arrives. Live (``qos: sensor_data``) the map is updated on a worker thread and keyframes do
 not queue (``core/sfm_live.py``; ``keyframes_skipped`` counts those replaced while waiting).
+Offline, the replay's end (``/absscale/end_of_bag``) runs the final batch adjustment
+(``adjust_at_end``) and publishes the converged map once more, stamped with the end's stamp,
+so the scale node's last estimate is of the map that ``bench sfm`` scores.
 Parameters: the scalars of ``SfmConfig`` and its stages as ``features.*``, ``twoview.*``,
 ``graph.*``, ``vertices.*``, ``local_map.*``, ``cloud.*`` (which landmarks are published),
 ``qos`` (``reliable``, or ``sensor_data`` live).
@@ -29,6 +32,7 @@ from nav_msgs.msg import Path
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from std_msgs.msg import Header
 
 Item = sfm_inputs.Item  # keyframe, its vertices, its tracked step (or None)
 
@@ -45,7 +49,7 @@ class SfmNode(Node):
                        for prefix, field in sfm.PARAM_PREFIXES.items()})
         p = {x.name: x.value for x in self.declare_parameters('', [
             ('pair_depth', 10), ('seed', 0), ('frame_id', 'map'), ('use_tracked_steps', True),
-            ('qos', 'reliable'), ('queue_keyframes', 0)])}
+            ('qos', 'reliable'), ('queue_keyframes', 0), ('adjust_at_end', True)])}
         self.session = sfm_session.SfmSession(replace(cfg, **values), p['seed'], time.perf_counter)
         self._frame, self._camera = p['frame_id'], None
         self._pubs = {name: self.create_publisher(cls, f'/absscale/{name}', common.RELIABLE)
@@ -71,6 +75,10 @@ class SfmNode(Node):
             sfm_live.LiveUpdates(self._updater.submit, time.monotonic_ns,
                                  lambda item: self._process(*item), self.session.adjust_if_due,
                                  self._skip, self.get_logger().error)
+        self._end_ack = common.StepAck(self)
+        self._end_sub = self.create_subscription(
+            Header, common.END_OF_BAG_TOPIC, self._on_end, common.RELIABLE,
+            callback_group=group) if self.live is None and p['adjust_at_end'] else None
         self._inputs = sfm_inputs.KeyframeInputs(self, group, p['pair_depth'],
                                                  p['use_tracked_steps'], self._on_image,
                                                  self._handle, self.session.count)
@@ -143,6 +151,18 @@ class SfmNode(Node):
             step = self.live.bridge(stamp_ns, step)
         self.session.add(stamp_ns, image, sfm_outputs.vertices_from_rows(rows), step, features,
                          self._camera, defer_batch=self.live is not None)
+        return self._publish_map(stamp_ns)
+
+    def _on_end(self, msg: Header) -> None:
+        """Offline, the bag's end: the final batch adjustment, then the map once more."""
+        while self._queued:
+            self._queued.popleft().result()  # the queued keyframes first
+        outputs = [] if self.session.finish() is None else \
+            self._publish_map(conversions.stamp_to_ns(msg.stamp))
+        self._end_ack.ack(msg.stamp, self._end_sub.topic_name, outputs)
+
+    def _publish_map(self, stamp_ns: int) -> list[str]:
+        """The map's messages and diagnostics, stamped ``stamp_ns``; the topics published."""
         msgs, vertices = sfm_inputs.map_messages(self.session, stamp_ns, self._frame)
         for name, msg in msgs.items():  # target_points last: scale reads cloud and path then
             self._pubs[name].publish(msg)

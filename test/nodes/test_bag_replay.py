@@ -2,13 +2,17 @@
 from pathlib import Path
 import time
 
+from absscale_ros import conversions
+from absscale_ros.nodes import common
 from absscale_ros.nodes.bag_replay import BagReplayNode
 from absscale_ros.nodes.step_sink import StepSinkNode
 from bagfactory import IMAGE_TOPIC, INFO_TOPIC, write_camera_bag
 import pytest
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
 from rclpy.parameter import Parameter
 from ros_helpers import spin_until
+from std_msgs.msg import Header
 
 
 def _graph(context, bag: Path, **replay_params):
@@ -55,6 +59,26 @@ def test_step_mode_waits_for_the_consumer(context, tmp_path: Path) -> None:
     spin_until(executor, lambda: False, timeout_s=0.3)
     assert len(sink.received) == 1 and replay.steps == 1
     assert spin_until(executor, lambda: replay.timeouts >= 1, timeout_s=5.0)
+
+
+def test_step_mode_ends_with_an_end_of_bag_step(context, tmp_path: Path) -> None:
+    """Once every frame is acknowledged, an end-of-bag step stamped after the last frame
+    goes out; the replay is drained only when its subscriber (the sfm) acknowledges it."""
+    bag = tmp_path / 'cam.mcap'
+    write_camera_bag(bag, frames=5)
+    sink, replay, executor = _graph(context, bag, mode='step', topics=IMAGE_TOPIC)
+    ender = Node('ender', context=context)
+    ack, got = common.StepAck(ender), []
+    ender.create_subscription(Header, common.END_OF_BAG_TOPIC, got.append, common.RELIABLE)
+    executor.add_node(ender)
+    assert spin_until(executor, lambda: len(got) == 1, timeout_s=20.0)
+    assert len(sink.received) == 5 and replay.finished
+    assert conversions.stamp_to_ns(got[0].stamp) > max(replay.published_at)
+    spin_until(executor, lambda: False, timeout_s=0.3)
+    assert not replay.drained and len(got) == 1  # waiting for the answer
+    ack.ack(got[0].stamp, common.END_OF_BAG_TOPIC)
+    assert spin_until(executor, lambda: replay.drained)
+    assert replay.timeouts == 0 and replay.steps == 5
 
 
 def test_step_replay_queries_the_graph_sparingly_while_it_waits(

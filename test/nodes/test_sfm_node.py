@@ -132,6 +132,45 @@ def test_map_topics_match_the_core_and_every_input_is_acknowledged(context) -> N
         str(len(engine.current.map.landmarks))
 
 
+def test_the_end_of_bag_publishes_the_finished_map(context) -> None:
+    """Offline, the replay's end: the final batch adjustment, then the map once more (what
+    the scale node estimates last), equal to the core's map after ``finish``."""
+    seq = sfm_scenes.make_sequence('indoor_paper', 1, count=6)
+    node, probe = _run(context, seq, with_vertices=True)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    executor.add_node(probe)
+    end = probe.create_publisher(Header, common.END_OF_BAG_TOPIC, common.RELIABLE)
+    assert spin_until(executor, lambda: end.get_subscription_count() > 0)
+    end_ns = 7 * 100_000_000
+    end.publish(conversions.end_of_bag_msg(end_ns))
+    assert spin_until(executor, lambda: any(a.stamp_ns == end_ns for a in probe.acks),
+                      timeout_s=30.0)
+    ack = next(a for a in probe.acks if a.stamp_ns == end_ns)
+    assert ack.input_topic == common.END_OF_BAG_TOPIC and set(ack.outputs) == set(OUTPUTS)
+    assert spin_until(executor, lambda: all(
+        conversions.stamp_to_ns(probe.got[t][-1].header.stamp) == end_ns for t in OUTPUTS))
+    stamps = [(k + 1) * 100_000_000 for k in range(len(seq.images_bgr))]
+    engine = sfm.IncrementalSfm(seq.camera, sfm.SfmConfig(), np.random.default_rng(0))
+    rng = np.random.default_rng(5)
+    for k, image in enumerate(seq.images_bgr):
+        vertices = sfm_outputs.vertices_from_rows(_rows(sfm_scenes.detections(seq, k, rng)[0]))
+        engine.add_keyframe(stamps[k], image, vertices, _tracked(seq, k, stamps))
+    min_angle = sfm.SfmConfig().vertex_cfg.publish_min_angle_deg
+    before = sfm_outputs.target_points(engine.current.map, min_angle).points.copy()
+    engine.finish()
+    tp = sfm_outputs.target_points(engine.current.map, min_angle)
+    got = conversions.cloud_msg_to_array(probe.got[OUTPUTS[2]][-1])
+    assert len(got) == len(tp.points) >= 3
+    xyz = np.stack([got[a] for a in 'xyz'], axis=1)
+    assert np.allclose(xyz, tp.points, atol=1e-5)
+    assert list(got['vertex_id']) == list(tp.vertex_ids)
+    # The adjustment moved them (else this test could not tell the maps apart).
+    assert before.shape != tp.points.shape or \
+        np.max(np.linalg.norm(before - tp.points, axis=1)) > 1e-4
+    assert node.report()['final_batch_ms'] > 0.0
+
+
 @pytest.mark.parametrize('rotate_only', [True, False])
 def test_rotation_only_and_no_target_end_with_a_warning(context, rotate_only: bool) -> None:
     seq = sfm_scenes.make_sequence('outdoor_cube', 2, count=4, arc_deg=30.0,
