@@ -1,8 +1,8 @@
 """
 Cube faces joined with an object of their own colour: one mask region, cut back into faces.
 
-A box of a cube colour standing behind the cube (or a cube face's neighbour of that colour)
-joins the face in the colour mask: the region fails the face tests, or passes them but is no
+A box of a cube colour standing behind the cube, or against it, joins the face of that
+colour in the colour mask: the region fails the face tests, or passes them but is no
 quadrilateral, and the cube is lost. A cube face is one flat colour, so the region is cut
 where that is no longer true, by either of two cues:
 
@@ -46,7 +46,8 @@ def split(contour: Contour, mask: npt.NDArray[np.uint8], work_bgr: npt.NDArray[n
         ``work_bgr`` the work image the mask was made from.
     :param canny: (low, high) Canny thresholds of the shading-edge cut.
     :param min_depth_px: shallowest concave corner cut along, work px.
-    :param passes: 3x3 openings after a cut (the colour mask's own), which part bridges.
+    :param passes: 3x3 openings after a cut, as many as the colour mask's own (they part the
+        thin bridges a cut leaves).
     """
     x, y, w, h = cv2.boundingRect(contour)
     x0, y0 = max(x - 2, 0), max(y - 2, 0)
