@@ -202,15 +202,14 @@ def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
         if children is not None:  # discovery across processes takes longer than in one
             replay_params['startup_timeout_s'] = max(30.0, replay_params.get(
                 'startup_timeout_s', 5.0))
-            if options.processes:
-                # Matching across processes can lag discovery by seconds on a busy machine: a
-                # frame sent before a node's input matched is lost (seen as one step timeout).
-                replay_params['settle_s'] = 5.0
         if options.live:
             replay_params.update(mode='rate', qos='sensor_data')
         replay = BagReplayNode(context=context, parameter_overrides=_overrides(replay_params))
-        if children is not None and not options.processes:
-            # Instead of a settle: every endpoint on either side matched to all it discovered.
+        if children is not None:
+            # Matching across processes can lag discovery by seconds on a busy machine, and a
+            # frame sent before a node's input matched is lost (seen as one step timeout): the
+            # replay starts once every endpoint on either side matched all it discovered
+            # (was a fixed 5 s settle with --processes).
             local = [*nodes.values(), monitor, replay]
             replay.gate = lambda: children.matched(local)
         for topic, msgtype in replay.topic_types().items():

@@ -1,8 +1,8 @@
 """
 Pipeline nodes of ``absscale run`` in processes of their own: one per node (``--processes``)
-or groups of nodes (the default split run), on the runner's DDS domain. Instead of a fixed
-settle, a split run starts once every endpoint on either side is matched to all that
-discovery knows of (``NodeProcesses.matched``).
+or groups of nodes (``--split``), on the runner's DDS domain. Instead of a fixed settle, a run
+starts once every endpoint on either side is matched to all that discovery knows of
+(``NodeProcesses.matched``; each node process answers with ``MatchAnswers``).
 """
 import ctypes
 import json
@@ -23,6 +23,10 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
+# A node process run by ``--processes`` (its own console-script main) finds the runner's folder
+# here and answers ``NodeProcesses.matched`` under its node's name.
+MATCH_DIR_ENV = 'ABSSCALE_MATCH_DIR'
+MATCH_PERIOD_S = 0.05  # how often a node process looks for the runner's question
 
 
 class NodeProcesses:
@@ -42,6 +46,7 @@ class NodeProcesses:
         self.names = [name for group in groups for name in group]
         self._procs: dict[str, subprocess.Popen] = {}
         self._expected: tuple[int, str] | None = None  # (version, counts) sent to the groups
+        env[MATCH_DIR_ENV] = self._dir.name
         for group in groups:
             label = '+'.join(group)
             if own_main:  # --processes: each node as its own console script runs it
@@ -183,6 +188,37 @@ def _unmatched(nodes: list[Node], counts: dict[str, dict[str, int]]) -> list[str
     return out
 
 
+class MatchAnswers:
+    """
+    In a node process: answers the runner's ``NodeProcesses.matched`` once every endpoint of
+    ``nodes`` is matched to as many peers as the runner's discovery counts (its question,
+    ``expect.json`` in ``folder``), with the endpoints they own (``LABEL.ready``).
+    """
+
+    def __init__(self, folder: Path, label: str, nodes: list[Node]) -> None:
+        self._folder, self._label, self._nodes = folder, label, nodes
+        self._answered: str | None = None
+        self._checked = -MATCH_PERIOD_S
+
+    def poll(self) -> None:
+        """Answer a new question if it can be (cheap enough to call after every callback)."""
+        now = time.monotonic()
+        if now - self._checked < MATCH_PERIOD_S:
+            return
+        self._checked = now
+        expect = _read(self._folder / 'expect.json')
+        if not expect or expect == self._answered:
+            return
+        counts = json.loads(expect)
+        if _unmatched(self._nodes, counts):
+            return
+        self._answered = expect
+        own = _own_endpoints(self._nodes)
+        tmp = self._folder / f'{self._label}.ready.tmp'
+        tmp.write_text(json.dumps({'version': counts['version'], **own}))
+        tmp.replace(self._folder / f'{self._label}.ready')  # never read half written
+
+
 def group_main() -> None:
     """
     A node process of a split run holding several pipeline nodes, on one executor.
@@ -200,18 +236,11 @@ def group_main() -> None:
     executor = common.single_threaded_executor(context)
     for node in nodes.values():
         executor.add_node(node)
-    answered = None
-    label = Path(folder) / f'{"+".join(names)}.ready'
+    answers = MatchAnswers(Path(folder), '+'.join(names), list(nodes.values()))
     try:
         while context.ok():
             executor.spin_once(timeout_sec=0.02)
-            expect = _read(Path(folder) / 'expect.json')
-            if expect and expect != answered:
-                counts = json.loads(expect)
-                if not _unmatched(list(nodes.values()), counts):
-                    answered = expect
-                    own = _own_endpoints(list(nodes.values()))
-                    label.write_text(json.dumps({'version': counts['version'], **own}))
+            answers.poll()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

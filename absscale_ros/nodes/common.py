@@ -144,9 +144,12 @@ def run_node(node_cls: type, args: list[str] | None = None, threads: int = 1) ->
     executor = MultiThreadedExecutor(num_threads=threads) if threads > 1 \
         else single_threaded_executor()
     executor.add_node(node)
+    answers = _match_answers(node)
     try:
         while rclpy.ok() and not getattr(node, 'finished', False):
             executor.spin_once(timeout_sec=0.1)
+            if answers is not None:
+                answers.poll()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
@@ -154,6 +157,18 @@ def run_node(node_cls: type, args: list[str] | None = None, threads: int = 1) ->
         _write_report(node)
         node.destroy_node()
         rclpy.try_shutdown()
+
+
+def _match_answers(node: Node) -> Any:
+    """Started by ``absscale run --processes``: the runner's start check, answered (see
+    ``node_processes.MatchAnswers``); else None."""
+    import os
+    from pathlib import Path
+
+    from absscale_ros import node_processes
+    folder = os.environ.get(node_processes.MATCH_DIR_ENV)
+    return node_processes.MatchAnswers(Path(folder), node.get_name(), [node]) if folder \
+        else None
 
 
 def _write_report(node: Any) -> None:

@@ -14,6 +14,7 @@ import json
 import os
 from pathlib import Path
 import resource
+import signal
 import subprocess
 import sys
 import tempfile
@@ -27,7 +28,11 @@ def run_once(tree: Path, bag: str, config: str, extra: list[str]) -> dict:
         done = subprocess.run(
             [sys.executable, '-m', 'absscale_ros.cli', 'run', bag, '--config', config,
              '--out', out, '--quiet', *extra], cwd=tree, capture_output=True, text=True,
-            env={**os.environ, 'PYTHONPATH': str(tree)})
+            env={**os.environ, 'PYTHONPATH': str(tree)},
+            # As from a terminal: this bench is often a script's background job, whose SIGINT
+            # is ignored, and trees before the reset in node_processes then waited 30 s per
+            # node process at the end (and lost their reports).
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
         wall = time.monotonic() - t0
         after = resource.getrusage(resource.RUSAGE_CHILDREN)
         path = Path(out) / 'report.json'
