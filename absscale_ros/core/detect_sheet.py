@@ -386,9 +386,10 @@ def _accept_blurred(image_bgr: npt.NDArray[np.uint8], quads_full: list[Array], b
         wide = max(band, cfg.blur_band_frac * side)
         ends = np.stack([quad, np.roll(quad, -1, axis=0)], axis=1)
         rough = np.array([lines.line_through(a, b, quad.mean(axis=0)) for a, b in ends])
-        if sides.ramp_widths(image_bgr, rough, ends, wide, None, None,
-                             step_px=sides.blur_step(wide)).max() < BLUR_MIN_RAMP_PX:
-            continue  # sharp all round already along the rough sides (the test below)
+        ramps = sides.ramp_widths(image_bgr, rough, ends, wide, None, None,
+                                  step_px=sides.blur_step(wide))
+        if ramps.max() < BLUR_MIN_RAMP_PX or not _blur_alike(ramps):
+            continue  # already along the rough sides (the test below)
         refined = _refine_quads(image_bgr, [quad], wide, (wide, 0.5 * wide), blurred=True)[0]
         if refined is None or not sheet_checks.big_enough(refined[0], image_bgr.shape, cfg):
             continue

@@ -101,13 +101,14 @@ def hypotheses(poly: Array, min_seen: float) -> list[Partial]:
     """
     out = []
     centre = poly.mean(axis=0)
+    # Edge e runs from poly[e] to poly[e + 1]; each hypothesis uses three of the five lines.
+    edges = [lines.line_through(poly[e], poly[(e + 1) % 5], centre) for e in range(5)]
     for k in range(5):
-        p = np.roll(poly, -(k + 2), axis=0)  # p[3], p[4]: the cut
-        corner = lines.intersect(lines.line_through(p[2], p[3], centre),
-                                 lines.line_through(p[4], p[0], centre))
+        p = poly[[(i + k + 2) % 5 for i in range(5)]]  # p[3], p[4]: the cut (edge k)
+        corner = lines.intersect(edges[(k + 4) % 5], edges[(k + 1) % 5])  # p2 p3, p4 p0
         if corner is None:
             continue
-        cut = lines.line_through(p[3], p[4], centre)
+        cut = edges[k]
         if cut[:2] @ corner + cut[2] <= 1.0:
             continue  # not beyond the cut: these sides do not meet at a hidden corner
         frac = np.array([np.hypot(*(p[3] - p[2])) / max(np.hypot(*(corner - p[2])), 1e-9),

@@ -215,11 +215,13 @@ def first_hypotheses(regions: list[tuple[npt.NDArray[np.int32], float]], scale: 
     out: list[sheet_partial.Partial] = []
     polys: list[Array] = []
     for contour, grow in regions if max_hyps > 0 else ():
-        outline = (_dense(contour.reshape(-1, 2).astype(np.float64)) + 0.5) / scale - 0.5
+        outline = None  # made once a polygon of the region is new (most repeat another mask's)
         for poly in polygons(contour, grow):
             if any(len(q) == len(poly) and np.abs(q - poly).max() <= 2.0 for q in polys):
                 continue  # the same outline from another mask
             polys.append(poly)
+            if outline is None:
+                outline = (_dense(contour.reshape(-1, 2).astype(np.float64)) + 0.5) / scale - 0.5
             for h in hypotheses((poly + 0.5) / scale - 0.5, K, stub_px, outline):
                 if any(np.abs(h.corners[:3] - o.corners[:3]).max() <= 6.0 for o in out):
                     continue
