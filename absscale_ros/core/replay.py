@@ -130,7 +130,7 @@ class StepWindow:
         if not tracker.done:
             self._open[stamp_ns] = (tracker, now)
 
-    def on_ack(self, ack: Ack, now: float = 0.0) -> bool:
+    def on_ack(self, ack: Ack, now: float) -> bool:
         """Record ``ack`` (received at ``now``); return True if it freed a place in the window
         (its step completed, or owes only deferred acknowledgements) or completed a deferred
         step."""
@@ -145,6 +145,10 @@ class StepWindow:
             return False
         if tracker.done:
             del steps[ack.stamp_ns]
+            if steps is self._deferred:
+                # A queue is worked in order: the steps queued behind this one waited for it,
+                # so their time counts from now (not from when they were queued).
+                self._deferred = {s: (t, max(at, now)) for s, (t, at) in self._deferred.items()}
             return True
         if steps is self._open and tracker.deferred:
             del self._open[ack.stamp_ns]

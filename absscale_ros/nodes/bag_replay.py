@@ -232,7 +232,7 @@ class BagReplayNode(Node):
             return
         if self._window.on_ack(ack, time.monotonic()) and self._cursor is not None:
             self._advance_step()
-        self._end.on_ack(ack)
+        self._end.on_ack(ack, time.monotonic())
 
     def _check_step_timeout(self) -> None:
         now = time.monotonic()

@@ -155,11 +155,16 @@ class SfmNode(Node):
 
     def _on_end(self, msg: Header) -> None:
         """Offline, the bag's end: the final batch adjustment, then the map once more."""
-        while self._queued:
-            self._queued.popleft().result()  # the queued keyframes first
-        outputs = [] if self.session.finish() is None else \
-            self._publish_map(conversions.stamp_to_ns(msg.stamp))
-        self._end_ack.ack(msg.stamp, self._end_sub.topic_name, outputs)
+        outputs: list[str] = []
+        try:
+            while self._queued:
+                self._queued.popleft().result()  # the queued keyframes first
+            if self.session.finish() is not None:
+                outputs = self._publish_map(conversions.stamp_to_ns(msg.stamp))
+        except Exception as err:  # noqa: BLE001 - the run must still end, not wait 300 s
+            self.get_logger().error(f'final batch adjustment failed: {err}')
+        finally:
+            self._end_ack.ack(msg.stamp, self._end_sub.topic_name, outputs)
 
     def _publish_map(self, stamp_ns: int) -> list[str]:
         """The map's messages and diagnostics, stamped ``stamp_ns``; the topics published."""

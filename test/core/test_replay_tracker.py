@@ -81,10 +81,10 @@ def test_window_keeps_several_frames_in_flight_and_completes_them_out_of_order()
     assert not w.full
     w.start('/cam', 2, now=0.1)
     assert w.full
-    w.on_ack(Ack('ingest', '/cam', 2))  # frame 2 drains first: its slot frees, frame 1 stays
+    w.on_ack(Ack('ingest', '/cam', 2), now=0.0)  # frame 2 drains first
     assert not w.full and not w.empty
-    assert not w.on_ack(Ack('ingest', '/cam', 7))  # a stamp not in flight changes nothing
-    assert w.on_ack(Ack('ingest', '/cam', 1))
+    assert not w.on_ack(Ack('ingest', '/cam', 7), now=0.0)  # a stamp not in flight changes nothing
+    assert w.on_ack(Ack('ingest', '/cam', 1), now=0.0)
     assert w.empty
 
 
@@ -110,9 +110,9 @@ def test_deferred_step_leaves_the_window_but_not_the_drain() -> None:
     assert w.full
     assert w.on_ack(Ack('sfm', '/keyframes', 1, (DEFERRED,)), now=1.0)  # queued: a place frees
     assert not w.full and not w.empty and w.deferred_total == 1
-    assert not w.on_ack(Ack('sfm', DEFERRED, 1, ('/map',)))  # published: scale owes /map
+    assert not w.on_ack(Ack('sfm', DEFERRED, 1, ('/map',)), now=2.0)  # published: scale owes /map
     assert not w.empty
-    assert w.on_ack(Ack('scale', '/map', 1))
+    assert w.on_ack(Ack('scale', '/map', 1), now=3.0)
     assert w.empty
 
 
@@ -132,3 +132,14 @@ def test_deferred_step_expires_counted_from_when_it_was_deferred() -> None:
     assert w.expire(now=10.0, timeout_s=5.0) == []
     assert w.expire(now=14.5, timeout_s=5.0) == [(3, ['sfm on deferred'])]
     assert w.empty
+
+
+def test_deferred_steps_queued_behind_another_wait_from_when_it_completed() -> None:
+    """The queue is worked in order: a step's timeout restarts once the one before it drained."""
+    w = StepWindow(lambda topic: QUEUED.get(topic, []), size=4)
+    for stamp in (4, 5):
+        w.start('/keyframes', stamp, now=0.0)
+        w.on_ack(Ack('sfm', '/keyframes', stamp, (DEFERRED,)), now=1.0)
+    w.on_ack(Ack('sfm', DEFERRED, 4, ()), now=5.5)  # the first is mapped after 4.5 s
+    assert w.expire(now=6.5, timeout_s=5.0) == []  # the second's clock restarted at 5.5
+    assert w.expire(now=10.5, timeout_s=5.0) == [(5, ['sfm on deferred'])]

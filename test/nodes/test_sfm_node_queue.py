@@ -77,10 +77,10 @@ def test_queued_keyframes_drain_only_once_a_slow_consumer_handled_their_outputs(
     spinning.start()
     try:
         assert spin_until(executor, lambda: replay.drained, timeout_s=300.0)
-        # Drained means handled: every keyframe's target points reached the slow consumer.
+        # Drained means handled: every keyframe's target points reached the slow consumer,
+        # and, at the end of the bag, those of the finished map (``adjust_at_end``).
         # (Acknowledged with no outputs once queued, the replay had drained while the sfm
         # was still mapping the last queued keyframes.)
-        # and, at the end of the bag, those of the finished map (``adjust_at_end``).
         assert sink.count == count + 1
         assert replay.steps == count and replay.timeouts == 0
         # The queue was on. Not every step need be deferred: the worker (GTSAM holds the GIL)
