@@ -367,6 +367,16 @@ def _rough_aspect_ok(quad: Array, shape: tuple[int, ...], band: float, cfg: Shee
                                                 ROUGH_ASPECT_CAP / cfg.aspect_tol, dist)
 
 
+def _side_ramps(image_bgr: npt.NDArray[np.uint8], quad: Array, wide: float,
+                inside: Array | None, outside: Array | None) -> Array:
+    """Ramp width of each side of ``quad`` in a band ``wide`` px either way (colours at the
+    band's ends unless given), sampled at the blur retry's step."""
+    ends = np.stack([quad, np.roll(quad, -1, axis=0)], axis=1)
+    ls = np.array([lines.line_through(a, b, quad.mean(axis=0)) for a, b in ends])
+    return sides.ramp_widths(image_bgr, ls, ends, wide, inside, outside,
+                             step_px=sides.blur_step(wide))
+
+
 def _accept_blurred(image_bgr: npt.NDArray[np.uint8], quads_full: list[Array], band: float,
                     cfg: SheetConfig, K: Array | None, found: list[Found],
                     dist: Array | None = None) -> None:
@@ -384,20 +394,13 @@ def _accept_blurred(image_bgr: npt.NDArray[np.uint8], quads_full: list[Array], b
     for quad in quads_full[:BLUR_MAX_QUADS]:
         side = float(np.linalg.norm(quad - np.roll(quad, -1, axis=0), axis=1).min())
         wide = max(band, cfg.blur_band_frac * side)
-        ends = np.stack([quad, np.roll(quad, -1, axis=0)], axis=1)
-        rough = np.array([lines.line_through(a, b, quad.mean(axis=0)) for a, b in ends])
-        ramps = sides.ramp_widths(image_bgr, rough, ends, wide, None, None,
-                                  step_px=sides.blur_step(wide))
+        ramps = _side_ramps(image_bgr, quad, wide, None, None)
         if ramps.max() < BLUR_MIN_RAMP_PX or not _blur_alike(ramps):
             continue  # already along the rough sides (the test below)
         refined = _refine_quads(image_bgr, [quad], wide, (wide, 0.5 * wide), blurred=True)[0]
         if refined is None or not sheet_checks.big_enough(refined[0], image_bgr.shape, cfg):
             continue
-        ls = np.array([lines.line_through(a, b, refined[0].mean(axis=0))
-                       for a, b in zip(refined[0], np.roll(refined[0], -1, axis=0))])
-        ramps = sides.ramp_widths(image_bgr, ls, np.stack(
-            [refined[0], np.roll(refined[0], -1, axis=0)], axis=1), wide, refined[3],
-            refined[4], step_px=sides.blur_step(wide))
+        ramps = _side_ramps(image_bgr, refined[0], wide, refined[3], refined[4])
         if ramps.max() < BLUR_MIN_RAMP_PX or not _blur_alike(ramps):
             continue  # sharp, or one side smeared by something else than motion
         tol = sheet_checks.aspect_tolerance(refined[0], cfg, K,

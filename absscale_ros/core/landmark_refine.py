@@ -170,10 +170,9 @@ def align(ref: Grey, img: Grey, T_ref: FloatArray, T_img: FloatArray, K: FloatAr
     u_b, v_b = apply(plane, u_a, v_a, f32)  # the remap's maps
     if len(mixed):  # those patches' off-plane pixels: fronto-parallel
         ok = on_plane(mixed, u_a[mixed], v_a[mixed])
-        pu, pv = apply(plane[mixed], u_a[mixed], v_a[mixed])
         fu, fv = apply(flat[mixed], u_a[mixed], v_a[mixed])
-        u_b[mixed] = np.where(ok, pu, fu)
-        v_b[mixed] = np.where(ok, pv, fv)
+        u_b[mixed] = np.where(ok, u_b[mixed], fu)  # on the plane: already in the maps
+        v_b[mixed] = np.where(ok, v_b[mixed], fv)
     A = (ref_tiles(ref, uv_ref, cfg) if tiles is None else tiles).reshape(n * s, s)
     B = cv2.remap(img, u_b.reshape(n * s, s), v_b.reshape(n * s, s), cv2.INTER_LINEAR,
                   borderMode=cv2.BORDER_REPLICATE)

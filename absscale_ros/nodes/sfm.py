@@ -75,10 +75,11 @@ class SfmNode(Node):
             sfm_live.LiveUpdates(self._updater.submit, time.monotonic_ns,
                                  lambda item: self._process(*item), self.session.adjust_if_due,
                                  self._skip, self.get_logger().error)
-        self._end_ack = common.StepAck(self)
+        at_end = self.live is None and p['adjust_at_end']
+        self._end_ack = common.StepAck(self) if at_end else None
         self._end_sub = self.create_subscription(
             Header, common.END_OF_BAG_TOPIC, self._on_end, common.RELIABLE,
-            callback_group=group) if self.live is None and p['adjust_at_end'] else None
+            callback_group=group) if at_end else None
         self._inputs = sfm_inputs.KeyframeInputs(self, group, p['pair_depth'],
                                                  p['use_tracked_steps'], self._on_image,
                                                  self._handle, self.session.count)
@@ -164,6 +165,7 @@ class SfmNode(Node):
         except Exception as err:  # noqa: BLE001 - the run must still end, not wait 300 s
             self.get_logger().error(f'final batch adjustment failed: {err}')
         finally:
+            assert self._end_ack is not None and self._end_sub is not None
             self._end_ack.ack(msg.stamp, self._end_sub.topic_name, outputs)
 
     def _publish_map(self, stamp_ns: int) -> list[str]:
