@@ -186,9 +186,9 @@ def _face_quads(mask: npt.NDArray[np.uint8], cfg: CubeConfig, scale: float = 1.0
     kernel = np.ones((3, 3), np.uint8)
     # The paper's opening is on the full image: on a work image ``scale`` times as big, as
     # many 3x3 passes remove as thin a strip (a face seen almost edge-on survives).
-    passes = max(1, int(round(cfg.opening_iterations * scale)))
+    passes = _opening_passes(cfg, scale)
     mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, kernel, iterations=passes)
-    min_area = cfg.min_face_area_frac * mask.shape[0] * mask.shape[1]
+    min_area = _min_face_area(cfg, mask.shape)
     out: list[tuple[Array, npt.NDArray[np.int32]]] = []
     if cv2.countNonZero(mask) < min_area:
         return out, mask
@@ -203,6 +203,16 @@ def _face_quads(mask: npt.NDArray[np.uint8], cfg: CubeConfig, scale: float = 1.0
         elif failed is not None:
             failed.append(c)
     return out, mask
+
+
+def _opening_passes(cfg: CubeConfig, scale: float) -> int:
+    """3x3 opening passes on a work image ``scale`` times the full one."""
+    return max(1, int(round(cfg.opening_iterations * scale)))
+
+
+def _min_face_area(cfg: CubeConfig, shape: tuple[int, ...]) -> float:
+    """Smallest face area, px, on an image of ``shape``."""
+    return cfg.min_face_area_frac * shape[0] * shape[1]
 
 
 def _face_test(contour: npt.NDArray[np.int32], cfg: CubeConfig, min_area: float
@@ -412,7 +422,7 @@ def _rough(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
         quads, opened = _face_quads(mask, cfg, scale, failed)
         for quad, contour in quads:
             regions.items.append((colour, contour, opened, len(found)))
-            found.append((colour, (quad + 0.5) / scale - 0.5, _full_px(contour, scale)))
+            found.append((colour, lines.full_px(quad, scale), _full_px(contour, scale)))
         regions.items.extend((colour, c, opened, -1) for c in failed)
     hough = _hough_sides([(q, c) for _, q, c in found], cfg)
     return [(c, h, q) for (c, q, _), h in zip(found, hough)], regions
@@ -420,7 +430,7 @@ def _rough(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
 
 def _full_px(contour: npt.NDArray[np.int32], scale: float) -> Array:
     """Return a work-image outline (N, 1, 2) as (N, 2) full-resolution px."""
-    return (contour.reshape(-1, 2).astype(np.float64) + 0.5) / scale - 0.5
+    return lines.full_px(contour.reshape(-1, 2).astype(np.float64), scale)
 
 
 @dataclass(frozen=True, eq=False)
@@ -442,8 +452,8 @@ def _split_faces(image_bgr: npt.NDArray[np.uint8], regions: _Regions,
     face tests or whose face failed the refinement, and that touches a region of another
     cube colour (a cube shows two faces at least: a red building on its own is left alone).
     """
-    passes = max(1, int(round(cfg.opening_iterations * regions.scale)))
-    min_area = cfg.min_face_area_frac * regions.work.shape[0] * regions.work.shape[1]
+    passes = _opening_passes(cfg, regions.scale)
+    min_area = _min_face_area(cfg, regions.work.shape)
 
     def face_quad(c: npt.NDArray[np.int32]) -> Array | None:
         return lines.rough_quad(c) if _face_test(c, cfg, min_area) else None
@@ -459,7 +469,7 @@ def _split_faces(image_bgr: npt.NDArray[np.uint8], regions: _Regions,
         for piece in cube_split.split(contour, mask, regions.work, face_quad, cfg.split_canny,
                                       cfg.split_min_depth_px, passes):
             quad = lines.rough_quad(piece)
-            found.append((colour, (quad + 0.5) / regions.scale - 0.5,
+            found.append((colour, lines.full_px(quad, regions.scale),
                           _full_px(piece, regions.scale)))
     if not found:
         return []

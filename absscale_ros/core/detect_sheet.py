@@ -240,16 +240,16 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
     band = max(6.0, 3.0 / scale)
     cands = sheet_candidates.Candidates(work, cfg)
     small: list[Array] = []
-    unfound = _accept_quads(image_bgr, [(q + 0.5) / scale - 0.5 for q in cands.quads], band,
+    unfound = _accept_quads(image_bgr, [lines.full_px(q, scale) for q in cands.quads], band,
                             cfg, K, found, dist, small)
     if not found:  # the colour-edge masks only when the whiteness masks show no sheet
-        unfound += _accept_quads(image_bgr, [(q + 0.5) / scale - 0.5
+        unfound += _accept_quads(image_bgr, [lines.full_px(q, scale)
                                              for q in cands.edge_quads()], band, cfg, K, found,
                                  dist, small)
     if not found and cfg.line_candidates:
         more = sheet_candidates.colour_quads(work, cands.regions, cfg) + \
             sheet_candidates.detached_quads(work, cfg)
-        _accept_quads(image_bgr, [(q + 0.5) / scale - 0.5 for q in more], band, cfg, K, found,
+        _accept_quads(image_bgr, [lines.full_px(q, scale) for q in more], band, cfg, K, found,
                       dist)
     if not found and cfg.line_candidates:
         line_quads = _line_candidates(image_bgr, cfg)
@@ -286,7 +286,7 @@ def _line_candidates(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig
             kept.append(quad)
         if len(kept) == cfg.line_max_refine:
             break
-    return [((q + 0.5) / scale - 0.5, max(6.0, 3.0 / scale)) for q in kept]
+    return [(lines.full_px(q, scale), max(6.0, 3.0 / scale)) for q in kept]
 
 
 # A sheet found: (score, (4, 2) corners, outline of the seen part (or a tuple of outlines of
@@ -341,7 +341,7 @@ def _whole_small(contour: npt.NDArray[np.int32], small: list[Array], scale: floa
     hypotheses could only outline the same too small seen part (``big_enough``), so they are
     not refined (far sheets: most frames of a walk-through).
     """
-    pts = (contour.reshape(-1, 2) + 0.5) / scale - 0.5
+    pts = lines.full_px(contour.reshape(-1, 2), scale)
     for quad in small:
         centre = quad.mean(axis=0)
         ls = np.array([lines.line_through(a, b, centre)
@@ -434,7 +434,7 @@ def _accept_hidden(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candida
     """
     paths: list[_Hidden] = []
     if cfg.min_seen < 1.0:
-        pents = [(p + 0.5) / scale - 0.5 for p in sheet_candidates.pentagons(regions)]
+        pents = [lines.full_px(p, scale) for p in sheet_candidates.pentagons(regions)]
         paths.append(_Hidden([sheet_partial.hypotheses(p, cfg.min_seen) for p in pents],
                              lambda hyp, out: sheet_partial.finish(hyp, out, band)))
     if cfg.stub_px > 0.0:
@@ -450,14 +450,14 @@ def _accept_hidden(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candida
     # Then the outlines the paths above did not try (only where they find nothing), the
     # hidden corner then covered by something that is neither the sheet nor its surface.
     if cfg.min_seen < 1.0:
-        pents = [(p + 0.5) / scale - 0.5 for p in sheet_candidates.pentagons(regions, True)]
+        pents = [lines.full_px(p, scale) for p in sheet_candidates.pentagons(regions, True)]
         paths.append(_Hidden([sheet_partial.hypotheses(p, cfg.min_seen) for p in pents],
                              lambda hyp, out: sheet_partial.finish(hyp, out, band),
                              strict_cover=True))
     if cfg.min_seen < 1.0 and cfg.split_gap > 0.0 and split:
         # (not merged like the masks' outlines: a rough corner a pixel off moves the hidden
         # corner's seen fractions across ``min_seen``)
-        pents = [(p + 0.5) / scale - 0.5 for r, _ in split
+        pents = [lines.full_px(p, scale) for r, _ in split
                  for p in (sheet_partial.pentagon(r), sheet_partial.sharp_pentagon(r))
                  if p is not None]
         paths.append(_Hidden([sheet_partial.hypotheses(p, SPLIT_SEEN * cfg.min_seen)

@@ -15,6 +15,12 @@ import numpy.typing as npt
 Array = npt.NDArray[np.float64]
 
 
+def full_px(p: npt.NDArray, scale: float) -> npt.NDArray:
+    """Points in px of a work image ``scale`` times the full one, in full-image px (pixel
+    centres map to pixel centres)."""
+    return (p + 0.5) / scale - 0.5
+
+
 def line_through(p0: Array, p1: Array, inside: Array) -> Array:
     """Return the line through ``p0``, ``p1`` whose normal points away from ``inside``."""
     # Scalar arithmetic: called thousands of times per frame on single points.

@@ -221,8 +221,8 @@ def first_hypotheses(regions: list[tuple[npt.NDArray[np.int32], float]], scale: 
                 continue  # the same outline from another mask
             polys.append(poly)
             if outline is None:
-                outline = (_dense(contour.reshape(-1, 2).astype(np.float64)) + 0.5) / scale - 0.5
-            for h in hypotheses((poly + 0.5) / scale - 0.5, K, stub_px, outline):
+                outline = lines.full_px(_dense(contour.reshape(-1, 2).astype(np.float64)), scale)
+            for h in hypotheses(lines.full_px(poly, scale), K, stub_px, outline):
                 if any(np.abs(h.corners[:3] - o.corners[:3]).max() <= 6.0 for o in out):
                     continue
                 if occluder_depth(h.corners, outline) >= 0.5 * OCCLUDER_DEPTH:
