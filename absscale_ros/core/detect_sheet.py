@@ -457,9 +457,9 @@ def _accept_hidden(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candida
     if cfg.min_seen < 1.0 and cfg.split_gap > 0.0 and split:
         # (not merged like the masks' outlines: a rough corner a pixel off moves the hidden
         # corner's seen fractions across ``min_seen``)
-        pents = [lines.full_px(p, scale) for r, _ in split
-                 for p in (sheet_partial.pentagon(r), sheet_partial.sharp_pentagon(r))
-                 if p is not None]
+        plain = [(r, sheet_partial.pentagon(r)) for r, _ in split]
+        pents = [lines.full_px(p, scale) for r, pent in plain
+                 for p in (pent, sheet_partial.sharp_pentagon(r, pent)) if p is not None]
         paths.append(_Hidden([sheet_partial.hypotheses(p, SPLIT_SEEN * cfg.min_seen)
                               for p in pents],
                              lambda hyp, out: sheet_split.finish(hyp, out, band, image_bgr),

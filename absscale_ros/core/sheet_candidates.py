@@ -333,7 +333,8 @@ def pentagons(regions: list[Region], sharp: bool = False) -> list[Array]:
     """
     pents: list[Array] = []
     for contour, grow in regions:
-        pent = (sheet_partial.sharp_pentagon if sharp else sheet_partial.pentagon)(contour)
+        pent = sheet_partial.pentagon(contour)
+        pent = sheet_partial.sharp_pentagon(contour, pent) if sharp else pent
         pent = None if pent is None else offset(pent, grow)
         if pent is not None and all(np.abs(pent - q).max() > 2.0 for q in pents):
             pents.append(pent)

@@ -50,19 +50,18 @@ def pentagon(contour: npt.NDArray[np.int32]) -> Array | None:
     return lines.rough_polygon(contour, 5, (0.01, 0.02, 0.03))
 
 
-def sharp_pentagon(contour: npt.NDArray[np.int32]) -> Array | None:
+def sharp_pentagon(contour: npt.NDArray[np.int32], plain: Array | None) -> Array | None:
     """
     Return the hull simplified finely with its blunted corners sharpened (``sharpened``) when
-    that leaves five vertices and differs from ``pentagon``. A small sheet in the work image
-    has every corner cut by one short edge, so a five-vertex simplification either spends a
-    vertex on a blunted corner or drops the occluder's cut.
+    that leaves five vertices and differs from ``plain`` (the contour's ``pentagon``). A small
+    sheet in the work image has every corner cut by one short edge, so a five-vertex
+    simplification either spends a vertex on a blunted corner or drops the occluder's cut.
     """
     hull = cv2.convexHull(contour)
     fine = cv2.approxPolyDP(hull, FINE_FRAC * cv2.arcLength(hull, True), True)
     sharp = sharpened(fine.reshape(-1, 2).astype(np.float64))
     if sharp is None or len(sharp) != 5:
         return None
-    plain = pentagon(contour)
     if plain is not None and any(np.abs(np.roll(sharp, -k, axis=0) - plain).max() <= 2.0
                                  for k in range(5)):
         return None
