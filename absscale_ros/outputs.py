@@ -10,8 +10,7 @@ from pathlib import Path
 import pickle
 import subprocess
 import sys
-import tempfile
-from typing import Any
+from typing import Any, Callable
 
 from absscale_ros import conversions
 from absscale_ros.core import cloud
@@ -29,11 +28,28 @@ def _cloud_arrays(msg: Any) -> tuple[np.ndarray, np.ndarray | None]:
 
 
 def write_run_outputs(latest: dict[str, tuple[Any, bytes]], out: Path,
-                      report: dict[str, Any]) -> dict[str, Any]:
-    """Write whichever output files the graph's last messages allow; return what was written."""
+                      report: dict[str, Any], picture: 'Picture | None' = None,
+                      meanwhile: Callable[[], None] | None = None) -> dict[str, Any]:
+    """
+    Write whichever output files the graph's last messages allow; return what was written.
+
+    :param picture: the drawing process, started before the run (default: started now).
+    :param meanwhile: more work for the caller while ``run.png`` is drawn.
+    """
     msgs = {topic: deserialize_message(data, cls) for topic, (cls, data) in latest.items()}
+    own = picture is None
+    picture = picture or Picture()
+    try:
+        return _write(msgs, out, report, picture, meanwhile)
+    finally:
+        if own:
+            picture.close()
+
+
+def _write(msgs: dict[str, Any], out: Path, report: dict[str, Any], picture: 'Picture',
+           meanwhile: Callable[[], None] | None) -> dict[str, Any]:
     written: dict[str, Any] = {}
-    picture = _picture(msgs, out, report)  # drawn by another process meanwhile
+    picture.draw(_picture_args(msgs, out, report))  # by its own process, meanwhile
     # With the dense node on (issue 9) /scaled_cloud is the dense cloud and the sparse metric
     # cloud comes on its own topic.
     dense = SPARSE_METRIC_TOPIC in msgs
@@ -54,17 +70,14 @@ def write_run_outputs(latest: dict[str, tuple[Any, bytes]], out: Path,
             cloud.write_tum(out / 'trajectory.tum', stamps, poses)
             written['trajectory.tum'] = {'poses': len(poses), 'units': units}
             break
-    _, err = picture.communicate()
-    written['run.png'] = {} if picture.returncode == 0 else {
-        'skipped': f'drawing failed: {err.decode(errors="replace").strip()[-300:]}'}
+    if meanwhile is not None:
+        meanwhile()
+    written['run.png'] = picture.wait()
     return written
 
 
-def _picture(msgs: dict[str, Any], out: Path, report: dict[str, Any]) -> subprocess.Popen:
-    """
-    Start drawing ``run.png`` in a process of its own (``run_figure.main``): importing
-    matplotlib and drawing a long run's cloud took 4.6 s, now beside the PLY files.
-    """
+def _picture_args(msgs: dict[str, Any], out: Path, report: dict[str, Any]) -> dict[str, Any]:
+    """``run_figure.main``'s arguments from the run's last messages and its report."""
     xyz = rgb = traj = quats = None
     if '/scaled_cloud' in msgs:
         xyz, rgb = _cloud_arrays(msgs['/scaled_cloud'])
@@ -72,14 +85,50 @@ def _picture(msgs: dict[str, Any], out: Path, report: dict[str, Any]) -> subproc
         poses, _ = conversions.path_msg_to_poses(msgs['/absscale/scaled_path'])
         traj, quats = poses[:, :3], poses[:, 3:]
     scale_report = report.get('nodes', {}).get('scale', {})
-    args = {'path': out / 'run.png', 'detections': report.get('detections', []),
+    return {'path': out / 'run.png', 'detections': report.get('detections', []),
             'history': scale_report.get('history', []), 'cloud_m': xyz, 'colors': rgb,
             'trajectory_m': traj, 'quats': quats,
             'title': f'absscale run: {Path(report["bag"]).name}'}
-    with tempfile.TemporaryFile() as f:  # the child reads it before it is closed here
-        f.write(pickle.dumps(args))
-        f.seek(0)
-        return subprocess.Popen(
+
+
+class Picture:
+    """
+    ``run.png`` drawn by a process of its own (``run_figure.main``) beside the PLY files and
+    the caller's own work (``write_run_outputs``' ``meanwhile``): importing matplotlib and
+    drawing a long run's cloud took 4.6 s in the runner. Started before the run, it loads
+    Python and matplotlib while the graph starts, then waits for ``draw``: the end of a split
+    run of the 60 s bag waited 2.4 s for its outputs, the drawing and then the comparison with
+    the ground truth, one after the other. ``close`` ends it if it was never used.
+    """
+
+    def __init__(self) -> None:
+        self._proc = subprocess.Popen(
             [sys.executable, '-c', 'from absscale_ros import run_figure; run_figure.main()'],
-            stdin=f, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+            stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
             env=dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path)))
+
+    def draw(self, args: dict[str, Any]) -> None:
+        """Hand it ``draw_run``'s arguments (``quats`` instead of ``up``, see ``main``)."""
+        assert self._proc.stdin is not None
+        try:
+            self._proc.stdin.write(pickle.dumps(args))
+            self._proc.stdin.close()
+        except BrokenPipeError:
+            pass  # it died loading: ``wait`` says why
+
+    def wait(self) -> dict[str, Any]:
+        """The ``outputs`` entry of ``run.png``: {} once drawn, else why it was not."""
+        assert self._proc.stderr is not None
+        err = self._proc.stderr.read()
+        self._proc.wait()
+        return {} if self._proc.returncode == 0 else {
+            'skipped': f'drawing failed: {err.decode(errors="replace").strip()[-300:]}'}
+
+    def close(self) -> None:
+        """End the process if it still waits (the run failed before drawing)."""
+        if self._proc.poll() is None:
+            self._proc.kill()
+            self._proc.wait()
+        for f in (self._proc.stdin, self._proc.stderr):
+            if f is not None:
+                f.close()

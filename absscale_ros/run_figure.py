@@ -42,6 +42,11 @@ def main() -> None:
     camera orientations (``quats``, xyzw) given instead of ``up``."""
     import pickle
     import sys
+    # Loaded before the arguments come: the caller starts this process before its run.
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot  # noqa: F401
+    from scipy.spatial.transform import Rotation  # noqa: F401 (up_from_cameras)
     args = pickle.loads(sys.stdin.buffer.read())
     quats = args.pop('quats')
     args['up'] = up_from_cameras(quats) if quats is not None and len(quats) else None

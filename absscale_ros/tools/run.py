@@ -3,7 +3,7 @@ import argparse
 import json
 from pathlib import Path
 import sys
-from typing import TYPE_CHECKING
+from typing import Any, TYPE_CHECKING
 
 from absscale_ros import bagio, params
 
@@ -45,6 +45,16 @@ def _progress_line(p: 'graph.Progress') -> str:
             f'{p.steps} frames, {p.keyframes} keyframes, {scale}, {p.elapsed_s:.1f} s ')
 
 
+def _against_truth(bag: str, report: dict[str, Any], latest: dict[str, Any]) -> dict[str, Any]:
+    """The scale error against a simulator bag's gt.json ({} when there is none)."""
+    from absscale_ros.tools import bench_scale
+    try:  # simulator bags only; a stale or broken gt.json must not lose the run's outputs
+        return bench_scale.against_truth_file(bag, report, latest)
+    except Exception as err:  # noqa: BLE001 (an optional evaluation after the run)
+        print(f'absscale run: not compared with {bag}.gt.json: {err}', file=sys.stderr)
+        return {}
+
+
 def run(args: argparse.Namespace) -> int:
     from absscale_ros import graph  # rclpy only once the arguments are good
     params.find_config(args.config)  # a bad config fails before the graph starts
@@ -61,18 +71,19 @@ def run(args: argparse.Namespace) -> int:
     options = graph.RunOptions(mode=args.mode, rate=args.rate, live=args.live,
                                domain_id=args.domain_id, record=args.record,
                                processes=args.processes, split=args.split)
-    report = graph.run_graph(args.bag, args.config, options, on_progress=show)
-    if show is not None:
-        print(file=sys.stderr)
     from absscale_ros import outputs
-    latest = report.pop('_latest')
-    report['outputs'] = outputs.write_run_outputs(latest, out, report)
-    from absscale_ros.tools import bench_scale
-    try:  # simulator bags only; a stale or broken gt.json must not lose the run's outputs
-        truth = bench_scale.against_truth_file(args.bag, report, latest)
-    except Exception as err:  # noqa: BLE001 (an optional evaluation after the run)
-        truth = {}
-        print(f'absscale run: not compared with {args.bag}.gt.json: {err}', file=sys.stderr)
+    picture = outputs.Picture()  # loads matplotlib while the graph starts
+    try:
+        report = graph.run_graph(args.bag, args.config, options, on_progress=show)
+        if show is not None:
+            print(file=sys.stderr)
+        latest = report.pop('_latest')
+        truth: dict[str, Any] = {}
+        report['outputs'] = outputs.write_run_outputs(
+            latest, out, report, picture,
+            meanwhile=lambda: truth.update(_against_truth(args.bag, report, latest)))
+    finally:
+        picture.close()
     if truth.get('scale_error_mm_per_m') is not None:
         report['truth'] = {k: truth[k] for k in ('true_factor', 'scale_error_mm_per_m',
                                                  'claimed_sigma_mm_per_m')}
