@@ -94,7 +94,7 @@ def detect(image_bgr: npt.NDArray[np.uint8], camera: CameraModel, cfg: FeatureCo
         return Features(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros((0, 128), np.float32),
                         np.zeros((0, 3), np.uint8))
     order = np.argsort([-k.response for k in kps], kind='stable')[:cfg.max_features]
-    xy = (np.array([kps[i].pt for i in order], np.float64) + 0.5) / f - 0.5  # pixel centres
+    xy = (cv2.KeyPoint_convert(kps)[order].astype(np.float64) + 0.5) / f - 0.5  # pixel centres
     ij = np.clip(np.rint(xy).astype(int), 0, [gray.shape[1] - 1, gray.shape[0] - 1])
     colours = image_bgr[ij[:, 1], ij[:, 0], ::-1].copy()
     return Features(xy, undistort_px(camera, xy), desc[order], colours)

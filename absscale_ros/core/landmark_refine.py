@@ -111,30 +111,66 @@ def align(ref: Grey, img: Grey, T_ref: FloatArray, T_img: FloatArray, K: FloatAr
     :param tiles: ``ref_tiles(ref, uv_ref, cfg)`` if kept from before (None: made here).
     :returns: (N, 2) undistorted px in ``img``, and (N,) whether alignment succeeded.
     """
+    if tiles is None:
+        tiles = _cut(ref, uv_ref, cfg)
+    return align_pairs([(img, T_ref, T_img, len(points))], K, points, normals, uv_ref, tiles,
+                       cfg)
+
+
+def _cut(ref: Grey, uv_ref: FloatArray, cfg: RefineConfig) -> Grey:
+    """``ref_tiles`` in parts that ``cv2.remap`` takes (fewer than 2^15 rows)."""
+    most = (2**15 - 1) // tile_size(cfg)
+    return np.concatenate([ref_tiles(ref, uv_ref[a:a + most], cfg)
+                           for a in range(0, max(len(uv_ref), 1), most)])
+
+
+def _homographies(T_ref: FloatArray, T_img: FloatArray, K: FloatArray, K_inv: FloatArray,
+                  points: FloatArray, normals: FloatArray) -> tuple[FloatArray, ...]:
+    """
+    Per patch of one keyframe pair: the plane's homography a -> b and the fronto-parallel one
+    (N, 3, 3), the plane's ``num`` and the point's depth in a (N,), and ``n_k`` (N, 3).
+
+    Ray-plane depth at a pixel of a is num / (n_a . ray), with ray = K^-1 (u, v, 1) (z = 1),
+    so the plane maps a to b by the homography K (num R + t n_a^T) K^-1 (R, t: a -> b); a
+    depth off the plane's plausible range is replaced by the point's own (fronto-parallel:
+    K (z R + t e_z^T) K^-1). Both per patch, evaluated on the tile's pixels: no per-pixel
+    rays or 3D points. n_a . ray = n_k . (u, v, 1): linear in the pixel.
+    """
+    R_a, t_a, R_b, t_b = T_ref[:3, :3], T_ref[:3, 3], T_img[:3, :3], T_img[:3, 3]
+    R, t = R_b.T @ R_a, R_b.T @ (t_a - t_b)
+    n_a = normals @ R_a  # the planes in camera a
+    p_a = (points - t_a) @ R_a
+    num, z_pt = np.sum(n_a * p_a, axis=1), p_a[:, 2]
+    plane = K @ (num[:, None, None] * R + t[:, None] * n_a[:, None, :]) @ K_inv
+    flat = K @ (z_pt[:, None, None] * R + np.outer(t, [0.0, 0.0, 1.0])) @ K_inv
+    return plane, flat, num, z_pt, n_a @ K_inv
+
+
+def align_pairs(pairs: list[tuple[Grey, FloatArray, FloatArray, int]], K: FloatArray,
+                points: FloatArray, normals: FloatArray, uv_ref: FloatArray, tiles: Grey,
+                cfg: RefineConfig) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
+    """
+    ``align`` for several keyframe pairs at once: the warps and their inverse for all patches
+    together (a keyframe refines ~300 observations in ~15 pairs: numpy's per-call work was
+    about a third of the alignment's CPU).
+
+    :param pairs: (img, T_ref, T_img, count) of each pair; its ``count`` patches follow the
+        previous pair's in ``points``, ``normals``, ``uv_ref`` and ``tiles``.
+    :param tiles: (N, s, s) ``ref_tiles`` of each patch in its reference image.
+    :returns: as ``align``, for all N patches in order.
+    """
     n, r, m = len(points), cfg.half_patch_px, cfg.margin_px
     if n == 0:
         return np.zeros((0, 2)), np.zeros(0, bool)
     s = tile_size(cfg)
     most = (2**15 - 1) // s  # cv2.remap takes images of fewer than 2^15 rows
-    if n > most:
-        parts = [align(ref, img, T_ref, T_img, K, points[a:a + most], normals[a:a + most],
-                       uv_ref[a:a + most], cfg, None if tiles is None else tiles[a:a + most])
-                 for a in range(0, n, most)]
-        return np.concatenate([q[0] for q in parts]), np.concatenate([q[1] for q in parts])
     grid = np.arange(-(r + m), r + m + 1, dtype=np.float64)
-    R_a, t_a, R_b, t_b = T_ref[:3, :3], T_ref[:3, 3], T_img[:3, :3], T_img[:3, 3]
     K_inv = np.linalg.inv(K)
-    # Ray-plane depth at a pixel of a is num / (n_a . ray), with ray = K^-1 (u, v, 1) (z = 1),
-    # so the plane maps a to b by the homography K (num R + t n_a^T) K^-1 (R, t: a -> b); a
-    # depth off the plane's plausible range is replaced by the point's own (fronto-parallel:
-    # K (z R + t e_z^T) K^-1). Both per patch, evaluated on the tile's pixels: no per-pixel
-    # rays or 3D points.
-    R, t = R_b.T @ R_a, R_b.T @ (t_a - t_b)
-    n_a = normals @ R_a  # the planes in camera a
-    p_a = (points - t_a) @ R_a
-    num, z_pt = np.sum(n_a * p_a, axis=1), p_a[:, 2]
-    plane = K @ (num[:, None, None] * R + t[:, None] * n_a[:, None, :]) @ K_inv  # (N, 3, 3)
-    flat = K @ (z_pt[:, None, None] * R + np.outer(t, [0.0, 0.0, 1.0])) @ K_inv
+    bounds = np.cumsum([0] + [p[3] for p in pairs]).tolist()
+    spans = list(zip(bounds[:-1], bounds[1:]))
+    plane, flat, num, z_pt, n_k = (np.concatenate(x) for x in zip(*[
+        _homographies(T_ref, T_img, K, K_inv, points[a:b], normals[a:b])
+        for (_, T_ref, T_img, _), (a, b) in zip(pairs, spans)]))
 
     def apply(H: FloatArray, u: FloatArray, v: FloatArray, dtype: type = np.float64
               ) -> tuple[FloatArray, FloatArray]:
@@ -150,7 +186,6 @@ def align(ref: Grey, img: Grey, T_ref: FloatArray, T_img: FloatArray, K: FloatAr
         return ub, np.divide(t, w, out=t if dtype is np.float64 else np.empty(w.shape, dtype))
     u_a = uv_ref[:, 0, None, None] + grid[None, None, :]  # (N, 1, s) and (N, s, 1): the tile
     v_a = uv_ref[:, 1, None, None] + grid[None, :, None]
-    n_k = n_a @ K_inv  # n_a . ray = n_k . (u, v, 1): linear in the pixel
 
     def on_plane(rows: npt.NDArray[np.int64], u: FloatArray, v: FloatArray
                  ) -> npt.NDArray[np.bool_]:
@@ -173,19 +208,31 @@ def align(ref: Grey, img: Grey, T_ref: FloatArray, T_img: FloatArray, K: FloatAr
         fu, fv = apply(flat[mixed], u_a[mixed], v_a[mixed])
         u_b[mixed] = np.where(ok, u_b[mixed], fu)  # on the plane: already in the maps
         v_b[mixed] = np.where(ok, v_b[mixed], fv)
-    A = (ref_tiles(ref, uv_ref, cfg) if tiles is None else tiles).reshape(n * s, s)
-    B = cv2.remap(img, u_b.reshape(n * s, s), v_b.reshape(n * s, s), cv2.INTER_LINEAR,
-                  borderMode=cv2.BORDER_REPLICATE)
-    centre = np.stack([np.full(n, r + m), r + m + s * np.arange(n)], 1).astype(f32)[:, None]
+    B = np.concatenate([cv2.remap(img, u_b[c:min(c + most, b)].reshape(-1, s),
+                                  v_b[c:min(c + most, b)].reshape(-1, s), cv2.INTER_LINEAR,
+                                  borderMode=cv2.BORDER_REPLICATE)
+                        for (img, *_), (a, b) in zip(pairs, spans)
+                        for c in range(a, b, most)]).reshape(n, s, s)
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.001)
     win = (cfg.window_px, cfg.window_px)
-    fwd, ok_f, _ = cv2.calcOpticalFlowPyrLK(A, B, centre, None, winSize=win, maxLevel=0,
-                                            criteria=crit)
-    back, ok_b, _ = cv2.calcOpticalFlowPyrLK(B, A, fwd, centre.copy(), winSize=win, maxLevel=0,
-                                             flags=cv2.OPTFLOW_USE_INITIAL_FLOW, criteria=crit)
-    shift = (fwd - centre).reshape(n, 2).astype(np.float64)
-    ok = ok_f.ravel().astype(bool) & ok_b.ravel().astype(bool) & \
-        (np.linalg.norm((back - centre).reshape(n, 2), axis=1) < cfg.max_fb_px) & \
+    fwd, back, ok_f, ok_b = [], [], [], []
+    # One mosaic per pair (each patch's tile below the previous one's): LK's float32
+    # positions lose precision further down a taller mosaic.
+    for c, k in ((c, min(most, b - c)) for a, b in spans for c in range(a, b, most)):
+        A_c, B_c = tiles[c:c + k].reshape(k * s, s), B[c:c + k].reshape(k * s, s)
+        centre = np.stack([np.full(k, r + m), r + m + s * np.arange(k)], 1).astype(f32)[:, None]
+        f, okf, _ = cv2.calcOpticalFlowPyrLK(A_c, B_c, centre, None, winSize=win, maxLevel=0,
+                                             criteria=crit)
+        bk, okb, _ = cv2.calcOpticalFlowPyrLK(B_c, A_c, f, centre.copy(), winSize=win,
+                                              maxLevel=0, flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+                                              criteria=crit)
+        fwd.append(f - centre)
+        back.append(bk - centre)
+        ok_f.append(okf)
+        ok_b.append(okb)
+    shift = np.concatenate(fwd).reshape(n, 2).astype(np.float64)
+    ok = np.concatenate(ok_f).ravel().astype(bool) & np.concatenate(ok_b).ravel().astype(bool) & \
+        (np.linalg.norm(np.concatenate(back).reshape(n, 2), axis=1) < cfg.max_fb_px) & \
         (np.abs(shift).max(axis=1) < m - 1)
     # The aligned tile position, mapped back through the warp (bilinear in the tile).
     x = np.clip(shift[:, 0] + r + m, 0.0, s - 1.001)

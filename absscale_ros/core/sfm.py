@@ -292,10 +292,11 @@ class IncrementalSfm:
 
     def _add_points(self, m: sfm_map.SfmMap, a: sfm_map.MapKeyframe, b: sfm_map.MapKeyframe,
                     pairs: npt.NDArray[np.int64], points_world: FloatArray) -> None:
-        for (i, j), p in zip(pairs, points_world):
-            lm_id = m.add_landmark(p, tuple(int(c) for c in a.features.colours_rgb[i]))
-            m.observe(lm_id, a.kf_id, a.features.points_px[i], int(i))
-            m.observe(lm_id, b.kf_id, b.features.points_px[j], int(j))
+        colours = a.features.colours_rgb[pairs[:, 0]].tolist() if len(pairs) else []
+        for (i, j), p, rgb in zip(pairs.tolist(), points_world, colours):
+            lm_id = m.add_landmark(p, tuple(rgb))
+            m.observe(lm_id, a.kf_id, a.features.points_px[i], i)
+            m.observe(lm_id, b.kf_id, b.features.points_px[j], j)
 
     def _register(self, seg: Segment, kf: sfm_map.MapKeyframe) -> tuple[str, str]:
         ids, why = sorted(seg.map.keyframes), ''
@@ -423,10 +424,10 @@ class IncrementalSfm:
         corr: dict[int, int] = {}  # keypoint of kf -> landmark
         claimed: set[int] = set()
         for n in neighbours:
-            for i, j in matches[n.kf_id]:
-                lm_id = int(n.landmark_of[i])
-                if lm_id >= 0 and int(j) not in corr and lm_id not in claimed:
-                    corr[int(j)] = lm_id
+            pairs = matches[n.kf_id].reshape(-1, 2)
+            for lm_id, j in zip(n.landmark_of[pairs[:, 0]].tolist(), pairs[:, 1].tolist()):
+                if lm_id >= 0 and j not in corr and lm_id not in claimed:
+                    corr[j] = lm_id
                     claimed.add(lm_id)
         if len(corr) < self.cfg.min_pnp_inliers:
             return None, None

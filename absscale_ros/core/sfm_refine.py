@@ -22,9 +22,10 @@ class ObservationRefiner:
         self._undistort = landmark_refine.undistort_maps(camera) \
             if cfg.max_observations > 0 and camera.has_distortion else None
         self.grey: dict[int, Grey] = {}  # by keyframe id
-        self._refined: set[tuple[int, int]] = set()  # (landmark, keyframe) aligned
-        # (landmark, keyframe) -> the observation a reference tile is centred on, and the tile
-        self._tiles: dict[tuple[int, int], tuple[FloatArray, Grey]] = {}
+        # By keyframe (dropped with its image): the landmarks aligned into it, and the
+        # reference tiles cut from it (landmark -> the observation it is centred on, the tile).
+        self._refined: dict[int, set[int]] = {}
+        self._tiles: dict[int, dict[int, tuple[FloatArray, Grey]]] = {}
 
     @property
     def enabled(self) -> bool:
@@ -42,8 +43,8 @@ class ObservationRefiner:
             return
         kept = set([k for k in sorted(self.grey) if k in kf_ids][-self.cfg.keep_images:])
         self.grey = {k: v for k, v in self.grey.items() if k in kept}
-        self._refined = {p for p in self._refined if p[1] in kept}
-        self._tiles = {p: v for p, v in self._tiles.items() if p[1] in kept}
+        self._refined = {k: v for k, v in self._refined.items() if k in kept}
+        self._tiles = {k: v for k, v in self._tiles.items() if k in kept}
 
     def refine(self, m: sfm_map.SfmMap, kf: sfm_map.MapKeyframe) -> int:
         """
@@ -56,7 +57,7 @@ class ObservationRefiner:
         if cfg.max_observations <= 0:
             return 0
         seen = np.unique(kf.landmark_of[kf.landmark_of >= 0]).tolist()
-        todo, done = [], self._refined
+        todo, done, none = [], self._refined, set()
         for lm_id in seen:
             lm = lms.get(lm_id)
             if lm is None or lm.label is not None or len(lm.obs_px) < cfg.min_views:
@@ -65,7 +66,7 @@ class ObservationRefiner:
             if len(kept) > 1:
                 kept.sort()
                 todo += [(-len(lm.obs_px), lm_id, kept[0], k) for k in kept[1:]
-                         if (lm_id, k) not in done]
+                         if lm_id not in done.get(k, none)]
         todo = sorted(todo)[:cfg.max_observations]
         if not todo:
             return 0
@@ -77,30 +78,40 @@ class ObservationRefiner:
         ids = sorted({lm_id for _, lm_id, _, _ in todo})
         normal_of = dict(zip(ids, landmark_refine.plane_normals(
             np.array([lms[i].point_world for i in ids]), cloud, cfg.neighbours)))
-        moved = 0
+        # Every (reference, keyframe) pair's patches in one alignment, pair after pair (a
+        # landmark's reference observation is never one that is refined, so their order does
+        # not matter).
+        pairs, entries, uv_a, tiles = [], [], [], []
         for (a, k), group in sorted(groups.items()):
-            uv_a = np.array([lms[i].obs_px[a] for i in group])
-            uv, ok = landmark_refine.align(
-                grey[a], grey[k], m.keyframes[a].T_world_cam, m.keyframes[k].T_world_cam, self.K,
-                np.array([lms[i].point_world for i in group]),
-                np.array([normal_of[i] for i in group]), uv_a, cfg,
-                self._ref_tiles(a, group, uv_a))
-            for lm_id, uv_k, good in zip(group, uv, ok.tolist()):
-                self._refined.add((lm_id, k))
-                if good:
-                    lms[lm_id].obs_px[k] = uv_k
-                    m.dirty.add(lm_id)
-                    moved += 1
+            uv = np.array([lms[i].obs_px[a] for i in group])
+            pairs.append((grey[k], m.keyframes[a].T_world_cam, m.keyframes[k].T_world_cam,
+                          len(group)))
+            entries += [(i, k) for i in group]
+            uv_a.append(uv)
+            tiles.append(self._ref_tiles(a, group, uv))
+        lm_ids = [i for i, _ in entries]
+        uv, ok = landmark_refine.align_pairs(
+            pairs, self.K, np.array([lms[i].point_world for i in lm_ids]),
+            np.array([normal_of[i] for i in lm_ids]), np.concatenate(uv_a),
+            np.concatenate(tiles), cfg)
+        for lm_id, k in entries:
+            self._refined.setdefault(k, set()).add(lm_id)
+        moved = 0
+        for (lm_id, k), uv_k, good in zip(entries, uv, ok.tolist()):
+            if good:
+                lms[lm_id].obs_px[k] = uv_k
+                m.dirty.add(lm_id)
+                moved += 1
         return moved
 
     def _ref_tiles(self, a: int, group: list[int], uv_a: FloatArray) -> Grey:
         """The reference tiles of landmarks ``group`` at ``uv_a`` (N, 2) in keyframe ``a``,
         each cut once (cutting them was a tenth of the alignment's CPU)."""
-        tiles, nan = self._tiles, np.full(2, np.nan)  # nan: no tile yet, never equal
-        have = np.array([tiles[(i, a)][0] if (i, a) in tiles else nan for i in group])
+        tiles, nan = self._tiles.setdefault(a, {}), np.full(2, np.nan)  # nan: never equal
+        have = np.array([tiles[i][0] if i in tiles else nan for i in group])
         new = np.flatnonzero(~np.all(have == uv_a, axis=1)).tolist()
         if new:
             cut = landmark_refine.ref_tiles(self.grey[a], uv_a[new], self.cfg)
             for j, tile in zip(new, cut):
-                tiles[(group[j], a)] = (uv_a[j], tile)
-        return np.stack([tiles[(i, a)][1] for i in group])
+                tiles[group[j]] = (uv_a[j], tile)
+        return np.stack([tiles[i][1] for i in group])

@@ -119,3 +119,22 @@ def test_sfm_with_refined_observations_is_more_accurate():
     print({b: (len(e), np.median(e), np.percentile(e, 90)) for b, e in errs.items()}, moved)
     assert moved[0] == 0 and moved[2000] > 1000
     assert np.median(errs[2000]) < 0.9 * np.median(errs[0])
+
+
+def test_pairs_aligned_together_as_one_by_one(pair):
+    """``ObservationRefiner`` aligns all of a keyframe's (reference, keyframe) pairs in one
+    ``align_pairs`` call: each pair's result must be what ``align`` alone gives it (its
+    Lucas-Kanade mosaic and warps the same)."""
+    greys, T, K, uv0, X, _ = pair
+    cfg = lr.RefineConfig()
+    normals = lr.plane_normals(X, X, cfg.neighbours)
+    parts = [(greys[1], T[1], slice(0, 60)), (greys[0], T[0], slice(60, 90)),
+             (greys[1], T[1], slice(90, 140))]
+    alone = [lr.align(greys[0], img, T[0], Tk, K, X[p], normals[p], uv0[p], cfg)
+             for img, Tk, p in parts]
+    together = lr.align_pairs([(img, T[0], Tk, p.stop - p.start) for img, Tk, p in parts], K,
+                              X[:140], normals[:140], uv0[:140], lr.ref_tiles(greys[0], uv0[:140],
+                                                                              cfg), cfg)
+    np.testing.assert_array_equal(np.concatenate([a[0] for a in alone]), together[0])
+    np.testing.assert_array_equal(np.concatenate([a[1] for a in alone]), together[1])
+    assert together[1].mean() > 0.5
