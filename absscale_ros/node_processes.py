@@ -5,6 +5,7 @@ starts once every endpoint on either side is matched to all that discovery knows
 (``NodeProcesses.matched``; each node process answers with ``MatchAnswers``).
 """
 import ctypes
+import functools
 import json
 import os
 from pathlib import Path
@@ -36,7 +37,9 @@ class NodeProcesses:
     """
 
     def __init__(self, config_path: Path, domain_id: int, live: bool,
-                 groups: list[list[str]], own_main: bool = False) -> None:
+                 groups: list[list[str]], own_main: bool = False,
+                 nice: dict[str, int] | None = None) -> None:
+        """:param nice: node name -> niceness added to the process that holds it."""
         from absscale_ros import graph
         self._dir = tempfile.TemporaryDirectory(prefix='absscale_nodes_')
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))  # with run_graph's DDS profile
@@ -69,7 +72,8 @@ class NodeProcesses:
                 self._procs[label] = subprocess.Popen(
                     [sys.executable, '-c', code, *args],
                     env=dict(env, ABSSCALE_REPORT=str(Path(self._dir.name) / f'{label}.json')),
-                    stdout=subprocess.DEVNULL, stderr=log, preexec_fn=_die_with_parent)
+                    stdout=subprocess.DEVNULL, stderr=log, preexec_fn=functools.partial(
+                        _start_child, sum((nice or {}).get(name, 0) for name in group)))
         self._reports: dict[str, Any] | None = None
         self.cpu_s: dict[str, float | None] = {}  # CPU time of each node process
 
@@ -253,10 +257,11 @@ def group_main() -> None:
         rclpy.try_shutdown(context=context)
 
 
-def _die_with_parent() -> None:
+def _start_child(nice: int) -> None:
     """
-    In a node process before it starts: end it when the runner dies. A runner killed by
-    SIGTERM or SIGKILL runs no cleanup, and its nodes would go on replaying into nothing.
+    In a node process before it starts: end it when the runner dies, and add ``nice`` to its
+    niceness (``graph.SPLIT_NICE``). A runner killed by SIGTERM or SIGKILL runs no cleanup,
+    and its nodes would go on replaying into nothing.
     SIGINT, which ``stop`` sends, is reset to its default: a runner started in the background
     by a non-interactive shell (``absscale run ... &`` in a script) ignores it, the ignoring is
     inherited, and its node processes then sat out the 30 s ``stop`` gives them, were killed
@@ -265,3 +270,5 @@ def _die_with_parent() -> None:
     libc = ctypes.CDLL(None, use_errno=True)
     libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
     signal.signal(signal.SIGINT, signal.SIG_DFL)
+    if nice:
+        os.nice(nice)

@@ -58,3 +58,12 @@ def test_the_frame_nodes_start_without_scipy() -> None:
                'import absscale_ros.nodes.keyframe_selector\n'
                'print(json.dumps({"scipy": "scipy.spatial" in sys.modules}))')
     assert out == {'scipy': False}
+
+
+def test_the_sfm_process_starts_without_scipy_stats() -> None:
+    """scipy.stats took 0.9 s to import, on the path of every run's start (the replay waits
+    for the scale node); the scale node's first estimate loads it."""
+    out = _run('import json, sys\n'
+               'import absscale_ros.nodes.sfm, absscale_ros.nodes.scale\n'
+               'print(json.dumps({"stats": "scipy.stats" in sys.modules}))')
+    assert out == {'stats': False}
