@@ -116,9 +116,9 @@ def buckets(rows: list, size: int) -> dict[int, tuple[int, float, float]]:
     return out
 
 
-def table(results: dict[str, dict], size: int) -> str:
+def table(results: dict[str, dict], size: int, what: str = 'update CPU ms') -> str:
     lines = [f'{"map keyframes":<14}' + ''.join(f'{name[-24:]:>36}' for name in results),
-             f'{"":<14}' + f'{"n   median  p95 update CPU ms":>36}' * len(results)]
+             f'{"":<14}' + f'{"n   median  p95 " + what:>36}' * len(results)]
     bs = [buckets(r['rows'], size) for r in results.values()]
     for b in sorted(set().union(*bs)):
         cells = ''.join(f'{"":>36}' if b not in x else
@@ -156,9 +156,10 @@ def main(argv: list[str] | None = None) -> int:
                         help="start from this config's sfm section (e.g. outdoor_cube: with "
                              "its full-resolution refinement) instead of the core defaults")
     args = parser.parse_args(argv)
+    what = 'thread CPU+wait ms' if args.prefetch else 'update CPU ms'
     if not args.pythonpath:
         result = run(args.bag, args.every, args.limit, args.set, args.config, args.prefetch)
-        print(json.dumps(result) if args.json else table({args.bag: result}, args.bucket))
+        print(json.dumps(result) if args.json else table({args.bag: result}, args.bucket, what))
         return 0
     cmd = [sys.executable, os.path.abspath(__file__), args.bag, '--every', str(args.every),
            '--limit', str(args.limit), '--json'] + (['--set', *args.set] if args.set else []) + \
@@ -168,7 +169,7 @@ def main(argv: list[str] | None = None) -> int:
                                  env={**os.environ, 'PYTHONPATH': p, 'OMP_NUM_THREADS': '1'})
              for p in args.pythonpath}
     results = {p: json.loads(proc.communicate()[0]) for p, proc in procs.items()}
-    print(table(results, args.bucket))
+    print(table(results, args.bucket, what))
     return 0
 
 
