@@ -26,10 +26,14 @@ class LocalMapConfig:
     radius_px: float = 4.0  # a keypoint this close to a landmark's projection is a candidate
     ratio: float = 0.8  # best descriptor distance under this share of the second best
     max_distance: float = 200.0  # ... and under this (SIFT L2, 90 % of verified matches)
+    # Before the final batch, each keyframe still holding descriptors looks for the landmarks
+    # of this many neighbours on each side, the newer ones included (0: off).
+    final_keyframes: int = 10
+    final_radius_px: float = 2.0  # ... within this of its projection, px (the poses have settled)
 
     def __post_init__(self) -> None:
-        if self.keyframes < 0 or self.radius_px <= 0.0 or not 0.0 < self.ratio <= 1.0 or \
-                self.max_distance <= 0.0:
+        if min(self.keyframes, self.final_keyframes) < 0 or not 0.0 < self.ratio <= 1.0 or \
+                min(self.radius_px, self.final_radius_px, self.max_distance) <= 0.0:
             raise ValueError(f'bad local map config {self}')
 
 
@@ -50,15 +54,17 @@ def _landmark_descriptors(m: sfm_map.SfmMap, recent: list[sfm_map.MapKeyframe],
 
 
 def search(m: sfm_map.SfmMap, K: FloatArray, kf: sfm_map.MapKeyframe, size: tuple[int, int],
-           cfg: LocalMapConfig) -> int:
+           cfg: LocalMapConfig, others: list[sfm_map.MapKeyframe] | None = None) -> int:
     """
     Add observations of local-map landmarks to the registered keyframe ``kf`` (in ``m``).
 
     :param size: image (width, height), px.
+    :param others: the keyframes whose landmarks are looked for, newest first (None: the
+        ``cfg.keyframes`` newest of the map); each must still hold its descriptors.
     :returns: observations added.
     """
     recent = [m.keyframes[i] for i in sorted(m.keyframes, reverse=True)
-              if i != kf.kf_id][:cfg.keyframes]
+              if i != kf.kf_id][:cfg.keyframes] if others is None else others
     free = np.flatnonzero(kf.landmark_of < 0)
     if not recent or not len(free) or kf.features.descriptors.dtype != np.float32:  # SIFT only
         return 0

@@ -241,8 +241,25 @@ class IncrementalSfm:
         """Final batch adjustment of every initialised segment; the result of the current one."""
         for seg in self.segments:
             if seg.initialised:
+                self._link_back(seg.map)
                 seg.graph.batch(seg.map, self._progress, converged=True)
         return self._result('finished', f'{len(self.segments)} segment(s) adjusted', True)
+
+    def _link_back(self, m: sfm_map.SfmMap) -> int:
+        """
+        Before the final batch, each keyframe still holding its descriptors looks for the
+        landmarks of ``local_cfg.final_keyframes`` neighbours on each side (the guided search
+        during the run only links a new keyframe to older landmarks, never an older keyframe
+        to the landmarks triangulated after it); returns the observations added.
+        """
+        w = self.cfg.local_cfg.final_keyframes
+        ids = [i for i in sorted(m.keyframes) if len(m.keyframes[i].features.descriptors)]
+        added, size = 0, (self.camera.width, self.camera.height)
+        cfg = replace(self.cfg.local_cfg, radius_px=self.cfg.local_cfg.final_radius_px)
+        for n, i in enumerate(ids if w > 0 else []):
+            others = [m.keyframes[j] for j in ids[max(0, n - w):n + w + 1] if j != i][::-1]
+            added += local_map.search(m, self.K, m.keyframes[i], size, cfg, others)
+        return added
 
     def _result(self, status: str, msg: str, full: bool = False) -> UpdateResult:
         m = self.current.map
