@@ -250,7 +250,10 @@ class IncrementalSfm:
         Before the final batch, each keyframe still holding its descriptors looks for the
         landmarks of ``local_cfg.final_keyframes`` neighbours on each side (the guided search
         during the run only links a new keyframe to older landmarks, never an older keyframe
-        to the landmarks triangulated after it); returns the observations added.
+        to the landmarks triangulated after it); returns the observations added. Only the
+        newest keyframes of the current segment still hold descriptors (30 in the configs, see
+        ``_forget_descriptors``), so a longer map's early keyframes are not reached: linking
+        each keyframe as it forgets its descriptors would reach them (not done yet).
         """
         w = self.cfg.local_cfg.final_keyframes
         ids = [i for i in sorted(m.keyframes) if len(m.keyframes[i].features.descriptors)]
