@@ -116,11 +116,19 @@ class Picture:
         except BrokenPipeError:
             pass  # it died loading: ``wait`` says why
 
-    def wait(self) -> dict[str, Any]:
-        """The ``outputs`` entry of ``run.png``: {} once drawn, else why it was not."""
+    def wait(self, timeout_s: float = 120.0) -> dict[str, Any]:
+        """
+        The ``outputs`` entry of ``run.png``: {} once drawn, else why it was not. A drawing
+        that hangs is killed after ``timeout_s`` (the run's other outputs are written by then).
+        """
         assert self._proc.stderr is not None
+        try:  # stderr is only a traceback, well inside a pipe's buffer
+            self._proc.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            self._proc.kill()
+            self._proc.wait()
+            return {'skipped': f'drawing took longer than {timeout_s:g} s'}
         err = self._proc.stderr.read()
-        self._proc.wait()
         return {} if self._proc.returncode == 0 else {
             'skipped': f'drawing failed: {err.decode(errors="replace").strip()[-300:]}'}
 
