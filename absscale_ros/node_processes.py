@@ -39,7 +39,8 @@ class NodeProcesses:
     def __init__(self, config_path: Path, domain_id: int, live: bool,
                  groups: list[list[str]], own_main: bool = False,
                  nice: dict[str, int] | None = None) -> None:
-        """:param nice: node name -> niceness added to the process that holds it."""
+        """:param nice: node name -> niceness added to the process that holds it (the largest
+            of its nodes')."""
         from absscale_ros import graph
         self._dir = tempfile.TemporaryDirectory(prefix='absscale_nodes_')
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))  # with run_graph's DDS profile
@@ -73,7 +74,7 @@ class NodeProcesses:
                     [sys.executable, '-c', code, *args],
                     env=dict(env, ABSSCALE_REPORT=str(Path(self._dir.name) / f'{label}.json')),
                     stdout=subprocess.DEVNULL, stderr=log, preexec_fn=functools.partial(
-                        _start_child, sum((nice or {}).get(name, 0) for name in group)))
+                        _start_child, max((nice or {}).get(name, 0) for name in group)))
         self._reports: dict[str, Any] | None = None
         self.cpu_s: dict[str, float | None] = {}  # CPU time of each node process
 

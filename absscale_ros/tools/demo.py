@@ -2,7 +2,6 @@
 import argparse
 import json
 from pathlib import Path
-from typing import Any
 
 from absscale_ros.core.errors import AbsScaleError
 
@@ -24,18 +23,9 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     print(f'absscale demo: replaying {bag.name} through the graph (config {args.scene})')
-    from absscale_ros import outputs
-    from absscale_ros.tools import bench_scale
-    picture = outputs.Picture()  # loads matplotlib while the graph starts
-    try:
-        report = graph.run_graph(str(bag), args.scene, graph.RunOptions(mode='step'))
-        latest = report.pop('_latest')
-        truth: dict[str, Any] = {}
-        report['outputs'] = outputs.write_run_outputs(
-            latest, out, report, picture, meanwhile=lambda: truth.update(
-                bench_scale.against_truth_file(str(bag), report, latest)))
-    finally:
-        picture.close()
+    from absscale_ros.tools import run as run_tool
+    report, truth = run_tool.run_with_outputs(str(bag), args.scene,
+                                              graph.RunOptions(mode='step'), out)
     (out / 'report.json').write_text(json.dumps(report, indent=2, default=str) + '\n')
     replay = report['replay']
     print(f'  frames replayed : {replay["steps"]} ({replay["published"]} messages) in '

@@ -3,7 +3,7 @@ import argparse
 import json
 from pathlib import Path
 import sys
-from typing import Any, TYPE_CHECKING
+from typing import Any, Callable, TYPE_CHECKING
 
 from absscale_ros import bagio, params
 
@@ -55,6 +55,31 @@ def _against_truth(bag: str, report: dict[str, Any], latest: dict[str, Any]) -> 
         return {}
 
 
+def run_with_outputs(bag: str, config: str, options: 'graph.RunOptions', out: Path,
+                     on_progress: Callable[['graph.Progress'], None] | None = None
+                     ) -> tuple[dict[str, Any], dict[str, Any]]:
+    """
+    The graph over ``bag``, then its output files in ``out``, with ``run.png`` drawn by a
+    process started before the run and the comparison with ground truth made while it draws.
+
+    :returns: the run's report (with its ``outputs``) and ``_against_truth``'s result.
+    """
+    from absscale_ros import graph, outputs
+    picture = outputs.Picture()  # loads matplotlib while the graph starts
+    try:
+        report = graph.run_graph(bag, config, options, on_progress=on_progress)
+        if on_progress is not None:
+            print(file=sys.stderr)
+        latest = report.pop('_latest')
+        truth: dict[str, Any] = {}
+        report['outputs'] = outputs.write_run_outputs(
+            latest, out, report, picture,
+            meanwhile=lambda: truth.update(_against_truth(bag, report, latest)))
+    finally:
+        picture.close()
+    return report, truth
+
+
 def run(args: argparse.Namespace) -> int:
     from absscale_ros import graph  # rclpy only once the arguments are good
     params.find_config(args.config)  # a bad config fails before the graph starts
@@ -71,19 +96,7 @@ def run(args: argparse.Namespace) -> int:
     options = graph.RunOptions(mode=args.mode, rate=args.rate, live=args.live,
                                domain_id=args.domain_id, record=args.record,
                                processes=args.processes, split=args.split)
-    from absscale_ros import outputs
-    picture = outputs.Picture()  # loads matplotlib while the graph starts
-    try:
-        report = graph.run_graph(args.bag, args.config, options, on_progress=show)
-        if show is not None:
-            print(file=sys.stderr)
-        latest = report.pop('_latest')
-        truth: dict[str, Any] = {}
-        report['outputs'] = outputs.write_run_outputs(
-            latest, out, report, picture,
-            meanwhile=lambda: truth.update(_against_truth(args.bag, report, latest)))
-    finally:
-        picture.close()
+    report, truth = run_with_outputs(args.bag, args.config, options, out, show)
     if truth.get('scale_error_mm_per_m') is not None:
         report['truth'] = {k: truth[k] for k in ('true_factor', 'scale_error_mm_per_m',
                                                  'claimed_sigma_mm_per_m')}
