@@ -13,6 +13,7 @@ from itertools import permutations
 
 import numpy as np
 import numpy.typing as npt
+from scipy import special
 
 from absscale_ros.core import aliasing
 from absscale_ros.core.errors import DegenerateGeometryError, NotObservableError
@@ -363,14 +364,13 @@ def estimate(objects: list[ObjectVertices], cfg: ScaleConfig,
     # Pairs share vertices, so they are not independent: count the vertices, not the pairs.
     n_vertices = sum(int(round((1 + np.sqrt(1 + 8 * len(m))) / 2)) for m in measured)
     sigma *= np.sqrt(len(x) / max(1, n_vertices - 1))
-    # Imported here: scipy.stats takes ~0.9 s to load, which held up every run's start (the
-    # replay waits for the scale node), for a first estimate that comes seconds later.
-    from scipy import stats
-    t_crit = float(stats.t.ppf(0.5 + cfg.confidence / 2, max(1, n_vertices - 1)))
+    # scipy.special, not scipy.stats: the same quantiles without stats' ~0.9 s import in the
+    # middle of a run (special is loaded already with scipy.spatial).
+    t_crit = float(special.stdtrit(max(1, n_vertices - 1), 0.5 + cfg.confidence / 2))
     # The drift term is a model, not a sample: it widens sigma but takes no t-correction.
     local = sigma
     sigma = float(np.hypot(local, cfg.drift_sigma_rel * factor))
-    half = float(np.hypot(t_crit * local, stats.norm.ppf(0.5 + cfg.confidence / 2)
+    half = float(np.hypot(t_crit * local, special.ndtri(0.5 + cfg.confidence / 2)
                           * cfg.drift_sigma_rel * factor))
     if sigma / factor > cfg.max_relative_sigma:
         raise NotObservableError(f'scale too uncertain: sigma {100 * sigma / factor:.2f}% > '
