@@ -24,6 +24,7 @@ from absscale_ros.core.types import CameraModel
 
 FloatArray = npt.NDArray[np.float64]
 Grey = npt.NDArray[np.uint8]
+_MAX_ROWS = 2**15 - 1  # cv2.remap takes images of fewer than 2^15 rows
 
 
 @dataclass(frozen=True)
@@ -90,9 +91,11 @@ def ref_tiles(ref: Grey, uv_ref: FloatArray, cfg: RefineConfig) -> Grey:
     grid = np.arange(s, dtype=np.float64) - (s - 1) // 2
     u = (uv_ref[:, 0, None, None] + grid[None, None, :]).astype(np.float32)
     v = (uv_ref[:, 1, None, None] + grid[None, :, None]).astype(np.float32)
-    out = cv2.remap(ref, np.broadcast_to(u, (n, s, s)).reshape(n * s, s),
-                    np.broadcast_to(v, (n, s, s)).reshape(n * s, s), cv2.INTER_LINEAR,
-                    borderMode=cv2.BORDER_REPLICATE)
+    u, v = np.broadcast_to(u, (n, s, s)), np.broadcast_to(v, (n, s, s))
+    out = [cv2.remap(ref, u[c:c + k].reshape(k * s, s), v[c:c + k].reshape(k * s, s),
+                     cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+           for c, k in _chunks([(0, n)], _MAX_ROWS // s)]
+    out = np.concatenate(out) if out else np.zeros((0, s), np.uint8)
     return out.reshape(n, s, s)
 
 
@@ -146,6 +149,88 @@ def _homographies(T_ref: FloatArray, T_img: FloatArray, K: FloatArray, K_inv: Fl
     return plane, flat, num, z_pt, n_a @ K_inv
 
 
+class _Warps:
+    """The plane-induced homographies of N patches, with the fronto-parallel fallback for
+    pixels whose plane depth is implausible (``_homographies`` of each pair, concatenated)."""
+
+    def __init__(self, pairs: list[tuple[Grey, FloatArray, FloatArray, int]], K: FloatArray,
+                 points: FloatArray, normals: FloatArray, spans: list[tuple[int, int]]):
+        K_inv = np.linalg.inv(K)
+        self.plane, self.flat, self.num, self.z_pt, self.n_k = (np.concatenate(x) for x in zip(*[
+            _homographies(T_ref, T_img, K, K_inv, points[a:b], normals[a:b])
+            for (_, T_ref, T_img, _), (a, b) in zip(pairs, spans)]))
+
+    @staticmethod
+    def apply(H: FloatArray, u: FloatArray, v: FloatArray, dtype: type = np.float64
+              ) -> tuple[FloatArray, FloatArray]:
+        """Pixels of a through the (N, 3, 3) homographies: u (N, 1, S) and v (N, R, 1) (or
+        both (N, R, S)) give (N, R, S) of ``dtype``, the float64 quotient rounded (separable:
+        one full-size sum per row of H, into as few full-size arrays as it takes: allocating
+        them was most of the warp's time)."""
+        h = H[:, :, :, None, None]
+        w = h[:, 2, 0] * u + (h[:, 2, 1] * v + h[:, 2, 2])
+        t = h[:, 0, 0] * u + (h[:, 0, 1] * v + h[:, 0, 2])
+        ub = np.divide(t, w, out=np.empty(w.shape, dtype))
+        np.add(h[:, 1, 0] * u, h[:, 1, 1] * v + h[:, 1, 2], out=t)
+        return ub, np.divide(t, w, out=t if dtype is np.float64 else np.empty(w.shape, dtype))
+
+    def on_plane(self, rows: npt.NDArray[np.int64], u: FloatArray, v: FloatArray
+                 ) -> npt.NDArray[np.bool_]:
+        """Whether the plane's depth at the pixels (u, v) of patches ``rows`` is plausible."""
+        c = self.n_k[rows][:, :, None, None]
+        with np.errstate(divide='ignore', invalid='ignore'):
+            depth = self.num[rows, None, None] / (c[:, 0] * u + (c[:, 1] * v + c[:, 2]))
+        z = self.z_pt[rows, None, None]
+        return np.isfinite(depth) & (depth > 0.2 * z) & (depth < 5.0 * z)
+
+    def pixels(self, mixed: npt.NDArray[np.int64], u: FloatArray, v: FloatArray,
+               dtype: type = np.float64) -> tuple[FloatArray, FloatArray]:
+        """``apply`` of the plane warps; the ``mixed`` patches' off-plane pixels through the
+        fronto-parallel ones instead."""
+        ub, vb = self.apply(self.plane, u, v, dtype)
+        if len(mixed):
+            ok = self.on_plane(mixed, u[mixed], v[mixed])
+            fu, fv = self.apply(self.flat[mixed], u[mixed], v[mixed])
+            ub[mixed] = np.where(ok, ub[mixed], fu)  # on the plane: already there
+            vb[mixed] = np.where(ok, vb[mixed], fv)
+        return ub, vb
+
+
+def _chunks(spans: list[tuple[int, int]], most: int) -> list[tuple[int, int]]:
+    """(start, count) of runs of at most ``most`` patches, never across a pair."""
+    return [(c, min(most, b - c)) for a, b in spans for c in range(a, b, most)]
+
+
+def _lucas_kanade(tiles: Grey, warped: Grey, spans: list[tuple[int, int]], cfg: RefineConfig
+                  ) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
+    """Shift of each warped tile against its reference tile (N, 2), and whether it is
+    trusted: both directions tracked, agreeing within ``max_fb_px``, inside the margin."""
+    n, s, r, m = len(tiles), tile_size(cfg), cfg.half_patch_px, cfg.margin_px
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.001)
+    win = (cfg.window_px, cfg.window_px)
+    fwd, back, ok_f, ok_b = [], [], [], []
+    # One mosaic per pair (each patch's tile below the previous one's): LK's float32
+    # positions lose precision further down a taller mosaic.
+    for c, k in _chunks(spans, _MAX_ROWS // s):
+        A_c, B_c = tiles[c:c + k].reshape(k * s, s), warped[c:c + k].reshape(k * s, s)
+        centre = np.stack([np.full(k, r + m), r + m + s * np.arange(k)], 1).astype(
+            np.float32)[:, None]
+        f, okf, _ = cv2.calcOpticalFlowPyrLK(A_c, B_c, centre, None, winSize=win, maxLevel=0,
+                                             criteria=crit)
+        bk, okb, _ = cv2.calcOpticalFlowPyrLK(B_c, A_c, f, centre.copy(), winSize=win,
+                                              maxLevel=0, flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+                                              criteria=crit)
+        fwd.append(f - centre)
+        back.append(bk - centre)
+        ok_f.append(okf)
+        ok_b.append(okb)
+    shift = np.concatenate(fwd).reshape(n, 2).astype(np.float64)
+    ok = np.concatenate(ok_f).ravel().astype(bool) & np.concatenate(ok_b).ravel().astype(bool) & \
+        (np.linalg.norm(np.concatenate(back).reshape(n, 2), axis=1) < cfg.max_fb_px) & \
+        (np.abs(shift).max(axis=1) < m - 1)
+    return shift, ok
+
+
 def align_pairs(pairs: list[tuple[Grey, FloatArray, FloatArray, int]], K: FloatArray,
                 points: FloatArray, normals: FloatArray, uv_ref: FloatArray, tiles: Grey,
                 cfg: RefineConfig) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
@@ -162,78 +247,28 @@ def align_pairs(pairs: list[tuple[Grey, FloatArray, FloatArray, int]], K: FloatA
     n, r, m = len(points), cfg.half_patch_px, cfg.margin_px
     if n == 0:
         return np.zeros((0, 2)), np.zeros(0, bool)
+    if sum(p[3] for p in pairs) != n:
+        raise ValueError(f'the pairs hold {sum(p[3] for p in pairs)} patches, not {n}')
     s = tile_size(cfg)
-    most = (2**15 - 1) // s  # cv2.remap takes images of fewer than 2^15 rows
     grid = np.arange(-(r + m), r + m + 1, dtype=np.float64)
-    K_inv = np.linalg.inv(K)
     bounds = np.cumsum([0] + [p[3] for p in pairs]).tolist()
     spans = list(zip(bounds[:-1], bounds[1:]))
-    plane, flat, num, z_pt, n_k = (np.concatenate(x) for x in zip(*[
-        _homographies(T_ref, T_img, K, K_inv, points[a:b], normals[a:b])
-        for (_, T_ref, T_img, _), (a, b) in zip(pairs, spans)]))
-
-    def apply(H: FloatArray, u: FloatArray, v: FloatArray, dtype: type = np.float64
-              ) -> tuple[FloatArray, FloatArray]:
-        """Pixels of a through the (N, 3, 3) homographies: u (N, 1, S) and v (N, R, 1) (or
-        both (N, R, S)) give (N, R, S) of ``dtype``, the float64 quotient rounded (separable:
-        one full-size sum per row of H, into as few full-size arrays as it takes: allocating
-        them was most of the warp's time)."""
-        h = H[:, :, :, None, None]
-        w = h[:, 2, 0] * u + (h[:, 2, 1] * v + h[:, 2, 2])
-        t = h[:, 0, 0] * u + (h[:, 0, 1] * v + h[:, 0, 2])
-        ub = np.divide(t, w, out=np.empty(w.shape, dtype))
-        np.add(h[:, 1, 0] * u, h[:, 1, 1] * v + h[:, 1, 2], out=t)
-        return ub, np.divide(t, w, out=t if dtype is np.float64 else np.empty(w.shape, dtype))
+    warps = _Warps(pairs, K, points, normals, spans)
     u_a = uv_ref[:, 0, None, None] + grid[None, None, :]  # (N, 1, s) and (N, s, 1): the tile
     v_a = uv_ref[:, 1, None, None] + grid[None, :, None]
-
-    def on_plane(rows: npt.NDArray[np.int64], u: FloatArray, v: FloatArray
-                 ) -> npt.NDArray[np.bool_]:
-        """Whether the plane's depth at the pixels (u, v) of patches ``rows`` is plausible."""
-        c = n_k[rows][:, :, None, None]
-        with np.errstate(divide='ignore', invalid='ignore'):
-            depth = num[rows, None, None] / (c[:, 0] * u + (c[:, 1] * v + c[:, 2]))
-        z = z_pt[rows, None, None]
-        return np.isfinite(depth) & (depth > 0.2 * z) & (depth < 5.0 * z)
     # The depth's inverse is linear in the pixel, so a patch whose 4 tile corners are on the
     # plane is so everywhere; only the others are checked pixel by pixel.
     ends = grid[[0, -1]]
-    corners = on_plane(np.arange(n), uv_ref[:, 0, None, None] + ends[None, None, :],
-                       uv_ref[:, 1, None, None] + ends[None, :, None])
+    corners = warps.on_plane(np.arange(n), uv_ref[:, 0, None, None] + ends[None, None, :],
+                             uv_ref[:, 1, None, None] + ends[None, :, None])
     mixed = np.flatnonzero(~corners.all(axis=(1, 2)))
-    f32 = np.float32
-    u_b, v_b = apply(plane, u_a, v_a, f32)  # the remap's maps
-    if len(mixed):  # those patches' off-plane pixels: fronto-parallel
-        ok = on_plane(mixed, u_a[mixed], v_a[mixed])
-        fu, fv = apply(flat[mixed], u_a[mixed], v_a[mixed])
-        u_b[mixed] = np.where(ok, u_b[mixed], fu)  # on the plane: already in the maps
-        v_b[mixed] = np.where(ok, v_b[mixed], fv)
-    B = np.concatenate([cv2.remap(img, u_b[c:min(c + most, b)].reshape(-1, s),
-                                  v_b[c:min(c + most, b)].reshape(-1, s), cv2.INTER_LINEAR,
-                                  borderMode=cv2.BORDER_REPLICATE)
-                        for (img, *_), (a, b) in zip(pairs, spans)
-                        for c in range(a, b, most)]).reshape(n, s, s)
-    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.001)
-    win = (cfg.window_px, cfg.window_px)
-    fwd, back, ok_f, ok_b = [], [], [], []
-    # One mosaic per pair (each patch's tile below the previous one's): LK's float32
-    # positions lose precision further down a taller mosaic.
-    for c, k in ((c, min(most, b - c)) for a, b in spans for c in range(a, b, most)):
-        A_c, B_c = tiles[c:c + k].reshape(k * s, s), B[c:c + k].reshape(k * s, s)
-        centre = np.stack([np.full(k, r + m), r + m + s * np.arange(k)], 1).astype(f32)[:, None]
-        f, okf, _ = cv2.calcOpticalFlowPyrLK(A_c, B_c, centre, None, winSize=win, maxLevel=0,
-                                             criteria=crit)
-        bk, okb, _ = cv2.calcOpticalFlowPyrLK(B_c, A_c, f, centre.copy(), winSize=win,
-                                              maxLevel=0, flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
-                                              criteria=crit)
-        fwd.append(f - centre)
-        back.append(bk - centre)
-        ok_f.append(okf)
-        ok_b.append(okb)
-    shift = np.concatenate(fwd).reshape(n, 2).astype(np.float64)
-    ok = np.concatenate(ok_f).ravel().astype(bool) & np.concatenate(ok_b).ravel().astype(bool) & \
-        (np.linalg.norm(np.concatenate(back).reshape(n, 2), axis=1) < cfg.max_fb_px) & \
-        (np.abs(shift).max(axis=1) < m - 1)
+    u_b, v_b = warps.pixels(mixed, u_a, v_a, np.float32)  # the remap's maps
+    warped = np.concatenate([
+        cv2.remap(img, u_b[c:c + k].reshape(-1, s), v_b[c:c + k].reshape(-1, s),
+                  cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        for (img, *_), span in zip(pairs, spans) for c, k in _chunks([span], _MAX_ROWS // s)
+    ]).reshape(n, s, s)
+    shift, ok = _lucas_kanade(tiles, warped, spans, cfg)
     # The aligned tile position, mapped back through the warp (bilinear in the tile).
     x = np.clip(shift[:, 0] + r + m, 0.0, s - 1.001)
     y = np.clip(shift[:, 1] + r + m, 0.0, s - 1.001)
@@ -242,12 +277,7 @@ def align_pairs(pairs: list[tuple[Grey, FloatArray, FloatArray, int]], K: FloatA
     # The warp at the 4 tile pixels around it, (N, 2, 2): rows y0, y0 + 1; columns x0, x0 + 1.
     cu = uv_ref[:, 0, None, None] + grid[np.stack([x0, x0 + 1], 1)][:, None, :]
     cv = uv_ref[:, 1, None, None] + grid[np.stack([y0, y0 + 1], 1)][:, :, None]
-    ub, vb = apply(plane, cu, cv)
-    if len(mixed):
-        ok4 = on_plane(mixed, cu[mixed], cv[mixed])
-        fu, fv = apply(flat[mixed], cu[mixed], cv[mixed])
-        ub[mixed] = np.where(ok4, ub[mixed], fu)
-        vb[mixed] = np.where(ok4, vb[mixed], fv)
+    ub, vb = warps.pixels(mixed, cu, cv)
 
     def at(M: FloatArray) -> FloatArray:
         return ((1 - fx) * (1 - fy) * M[:, 0, 0] + fx * (1 - fy) * M[:, 0, 1] +

@@ -138,3 +138,23 @@ def test_pairs_aligned_together_as_one_by_one(pair):
     np.testing.assert_array_equal(np.concatenate([a[0] for a in alone]), together[0])
     np.testing.assert_array_equal(np.concatenate([a[1] for a in alone]), together[1])
     assert together[1].mean() > 0.5
+
+
+def test_more_patches_than_one_remap_takes(pair):
+    """cv2.remap takes fewer than 2^15 rows (~760 tiles of 43 px): a keyframe refining more
+    observations of one reference must still get each tile as if cut alone."""
+    greys, _, _, uv0, _, _ = pair
+    cfg = lr.RefineConfig()
+    uv = np.resize(uv0, (900, 2))
+    tiles = lr.ref_tiles(greys[0], uv, cfg)
+    assert tiles.shape[0] == 900
+    np.testing.assert_array_equal(tiles[850], lr.ref_tiles(greys[0], uv[850:851], cfg)[0])
+
+
+def test_pair_counts_must_add_up(pair):
+    greys, T, K, uv0, X, _ = pair
+    cfg = lr.RefineConfig()
+    normals = lr.plane_normals(X[:20], X[:20], 5)
+    with pytest.raises(ValueError, match='19 patches, not 20'):
+        lr.align_pairs([(greys[1], T[0], T[1], 19)], K, X[:20], normals, uv0[:20],
+                       lr.ref_tiles(greys[0], uv0[:20], cfg), cfg)
