@@ -94,6 +94,8 @@ def run(bag: str, every: int, limit: int, settings: list[str], name: str | None 
             ms = 1e3 * (time.thread_time() - c0 + wait)
         rows.append((r.keyframes, ms, r.status))
         print(kf_id, *rows[-1], file=sys.stderr, flush=True)  # progress
+    if pool is not None:
+        pool.shutdown()  # its idle thread would otherwise outlive the run (several trees)
     c0 = time.process_time()
     engine.finish()
     finish_ms = 1e3 * (time.process_time() - c0)
