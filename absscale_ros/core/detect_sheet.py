@@ -75,6 +75,11 @@ class SheetConfig:
         without a sheet; ``absscale detect`` (still images) turns it on.
     :param line_work_max_side_px: the line search runs on an image at most this big.
     :param line_max_refine: line hypotheses refined at full resolution, best supported first.
+    :param content_close_px: when the line search finds no sheet, it is run again on the image
+        with its dark thin strokes closed away (a grey-level closing with a disc this many px
+        wide at ``content_work_max_side_px``): a page's text and table lines outvote its
+        sides, and a desk's grain its surroundings, on the image as it is (0 turns it off).
+    :param content_work_max_side_px: the closing runs on an image at most this big.
     :param max_inside_spread: largest distance of the colour just inside one side from the
         median over the four sides, over the brightest channel of that median (one sheet).
     :param max_saturation: largest (max - min) / max channel of that median colour (paper is
@@ -127,6 +132,8 @@ class SheetConfig:
     line_candidates: bool = False
     line_work_max_side_px: int = 320
     line_max_refine: int = 3
+    content_close_px: int = 9
+    content_work_max_side_px: int = 640
     max_inside_spread: float = 0.25
     max_saturation: float = 0.35
     max_outside_spread: float = 0.5
@@ -251,9 +258,11 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
             sheet_candidates.detached_quads(work, cfg)
         _accept_quads(image_bgr, [lines.full_px(q, scale) for q in more], band, cfg, K, found,
                       dist)
-    if not found and cfg.line_candidates:
-        line_quads = _line_candidates(image_bgr, cfg)
-        if line_quads:
+    for closed in (False, True):
+        if found or not cfg.line_candidates or (closed and cfg.content_close_px <= 0):
+            break
+        line_quads = _line_candidates(image_bgr, cfg, closed)
+        if line_quads:  # (refined on the image as it is)
             _accept_quads(image_bgr, [q for q, _ in line_quads], line_quads[0][1], cfg, K, found,
                           dist)
     if not found and cfg.blur_band_frac > 0.0:
@@ -266,13 +275,14 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
     return [_detection(f, sheet_checks.best_model(f[1], image_bgr.shape, cfg, K)) for f in found]
 
 
-def _line_candidates(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig
+def _line_candidates(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig, closed: bool = False
                      ) -> list[tuple[Array, float]]:
-    """Return (full-resolution quad, refinement band px) hypotheses from straight edges."""
+    """Return (full-resolution quad, refinement band px) hypotheses from straight edges
+    (``closed``: of the image without its thin dark strokes, ``content_close_px``)."""
     h, w = image_bgr.shape[:2]
     scale = min(1.0, cfg.line_work_max_side_px / max(h, w))
-    work = cv2.resize(image_bgr, (round(w * scale), round(h * scale)),
-                      interpolation=cv2.INTER_AREA)
+    src = _without_strokes(image_bgr, cfg) if closed else image_bgr
+    work = cv2.resize(src, (round(w * scale), round(h * scale)), interpolation=cv2.INTER_AREA)
     aspect = max(m.aspect for m in cfg.models())
     min_side = np.sqrt(cfg.min_area_frac * work.shape[0] * work.shape[1] / aspect)
     hyps, _ = quads.find_quads(work, quads.QuadConfig(min_side_px=float(min_side),
@@ -287,6 +297,21 @@ def _line_candidates(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig
         if len(kept) == cfg.line_max_refine:
             break
     return [(lines.full_px(q, scale), max(6.0, 3.0 / scale)) for q in kept]
+
+
+def _without_strokes(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig
+                     ) -> npt.NDArray[np.uint8]:
+    """
+    Return the image shrunk to ``content_work_max_side_px`` with dark strokes thinner than
+    ``content_close_px`` closed away: printed text and rules turn into the page's white, a
+    cable across it into paper or desk, and the outline of anything wider stays where it is.
+    """
+    h, w = image_bgr.shape[:2]
+    scale = min(1.0, cfg.content_work_max_side_px / max(h, w))
+    small = cv2.resize(image_bgr, (round(w * scale), round(h * scale)),
+                       interpolation=cv2.INTER_AREA)
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (cfg.content_close_px,) * 2)
+    return cv2.morphologyEx(small, cv2.MORPH_CLOSE, disc)
 
 
 # A sheet found: (score, (4, 2) corners, outline of the seen part (or a tuple of outlines of
