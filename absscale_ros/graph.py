@@ -182,7 +182,7 @@ def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
     rclpy.init(context=context, args=[], domain_id=options.domain_id if lease is None
                else lease.domain_id)
     nodes: dict[str, Node] = {}
-    monitor = executor = children = None
+    monitor = executor = children = cv_threads = None
     try:
         names = [name for name, _ in available_modules(sections)]
         domain = context.get_domain_id()
@@ -194,6 +194,7 @@ def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
                 if options.split and not options.live else []
             groups = [g for g in groups if g]
             if groups:  # started first: their processes import while this one does
+                cv_threads = common.one_opencv_thread()
                 children = node_processes.NodeProcesses(config_path, domain, False, groups,
                                                         nice=SPLIT_NICE)
             nodes = start_nodes(context, sections, options.live,
@@ -272,6 +273,8 @@ def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
         rclpy.try_shutdown(context=context)
         if lease is not None:
             lease.release()
+        if cv_threads is not None:
+            common.one_opencv_thread(cv_threads)  # as it was for whatever runs next here
 
 
 def _spin(executor: Any, replay: BagReplayNode, monitor: GraphMonitorNode,

@@ -234,6 +234,7 @@ def group_main() -> None:
     from absscale_ros import graph
     config, names, live, folder = sys.argv[1], sys.argv[2].split(','), sys.argv[3], sys.argv[4]
     common.keep_freed_memory()
+    common.one_opencv_thread()  # a split run's process: the others use the other core
     context = rclpy.Context()
     rclpy.init(context=context, args=[])  # ROS_DOMAIN_ID from the runner
     nodes = graph.start_nodes(context, params.load_yaml(Path(config)), live == 'live', names,

@@ -120,6 +120,20 @@ def keep_freed_memory() -> None:
     mallopt(M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES)
 
 
+def one_opencv_thread(threads: int = 1) -> int:
+    """
+    OpenCV without its worker threads, in a process that shares two cores with other busy
+    processes (a split run's three). Its pool's threads spin (sched_yield) while they wait for
+    work: in a split run of the 60 s bag that was 5-7 s of the three processes' 66-72 s of CPU
+    (runner -2.0, detector -3.2, sfm -1.6 s), and the other processes keep the second core
+    busy anyway. Same keyframes, factor and cloud. Returns the count it replaced.
+    """
+    import cv2
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(threads)
+    return before
+
+
 def run_node(node_cls: type, args: list[str] | None = None, threads: int = 1) -> None:
     """
     The console-script ``main`` of every node (Jazzy style, see STYLE.md).

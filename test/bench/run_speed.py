@@ -6,10 +6,11 @@ noisy machine loads them alike (the ratio is the figure; absolute seconds drift 
       --tree new=. [--processes | --split] [--live] [--rounds 2]
 
 Per run: wall time of the command, the replay's wall time and peak RSS from report.json, CPU
-time of the run and its node processes, and for --live the frames each node dropped and the
-keyframe-to-/scaled_cloud latency.
+time of the run and its node processes, the factor and a hash of scaled_cloud.ply, and for
+--live the frames each node dropped and the keyframe-to-/scaled_cloud latency.
 """
 import argparse
+import hashlib
 import json
 import os
 from pathlib import Path
@@ -37,6 +38,8 @@ def run_once(tree: Path, bag: str, config: str, extra: list[str]) -> dict:
         after = resource.getrusage(resource.RUSAGE_CHILDREN)
         path = Path(out) / 'report.json'
         report = json.loads(path.read_text()) if path.exists() else {}
+        cloud = Path(out) / 'scaled_cloud.ply'  # "identical cloud": the same bytes
+        cloud_sha1 = hashlib.sha1(cloud.read_bytes()).hexdigest()[:12] if cloud.exists() else None
     nodes = report.get('nodes', {})
     return {
         'exit': done.returncode, 'wall_s': round(wall, 1),
@@ -50,6 +53,7 @@ def run_once(tree: Path, bag: str, config: str, extra: list[str]) -> dict:
         'keyframes': nodes.get('keyframe_selector', {}).get('keyframes'),
         'sfm_keyframes_in': nodes.get('sfm', {}).get('keyframes_in'),
         'scale': nodes.get('scale', {}).get('factor'),
+        'cloud_sha1': cloud_sha1,
         'steps_deferred': report.get('replay', {}).get('steps_deferred'),
         'latency_s': report.get('latency_s'),
         'last_line': (done.stdout.strip().splitlines() or [''])[-1][:200],
