@@ -13,7 +13,6 @@ import warnings
 
 import numpy as np
 import numpy.typing as npt
-from scipy.spatial.transform import Rotation
 
 from absscale_ros.core import align
 from absscale_ros.core.types import CameraModel
@@ -34,6 +33,9 @@ def project(points: FloatArray, pose_xyzw: FloatArray, camera: CameraModel) -> F
     :param pose_xyzw: (7,) ``x y z qx qy qz qw``, world from camera.
     """
     import cv2
+    # Here, not at the top: absscale run's comparison with gt.json needs only true_scale, and
+    # in a split run's runner scipy.spatial (0.9 s) would load for it at the end of the run.
+    from scipy.spatial.transform import Rotation
     R_wc = Rotation.from_quat(pose_xyzw[3:]).as_matrix()
     p_cam = (np.asarray(points) - pose_xyzw[:3]) @ R_wc
     px, _ = cv2.projectPoints(p_cam.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), camera.K,

@@ -5,6 +5,7 @@ behind any pixel (re-rendered from scene name + seed + variant). Schema: docs/gt
 import functools
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -12,8 +13,11 @@ import numpy.typing as npt
 
 from absscale_ros.core.types import CameraModel
 from absscale_ros.sim import camera as simcam
-from absscale_ros.sim import render, scenes
+from absscale_ros.sim import scenes
 from absscale_ros.sim.scene import FloatArray, Scene, Target
+
+if TYPE_CHECKING:  # render loads Open3D (~3 s): not for reading a gt.json (absscale run's end)
+    from absscale_ros.sim import render
 
 SCHEMA = 'absscale_sim_gt'
 SCHEMA_VERSION = 1
@@ -43,7 +47,7 @@ def camera_from_json(cam: dict[str, object]) -> CameraModel:
                        np.array(cam['D']), str(cam['distortion_model']))
 
 
-def vertex_visibility(renderer: render.Renderer, T_world_cam: FloatArray,
+def vertex_visibility(renderer: 'render.Renderer', T_world_cam: FloatArray,
                       vertices_world_m: FloatArray) -> tuple[FloatArray, list[bool]]:
     """
     Distorted pixel positions and visibility of world points.
@@ -87,7 +91,7 @@ def face_outline(surface: npt.NDArray[np.int32], surface_id: int,
     return {'area_px': area, 'polygons_px': outer, 'holes_px': holes}
 
 
-def frame_targets(renderer: render.Renderer, frame: render.Frame, T_world_cam: FloatArray,
+def frame_targets(renderer: 'render.Renderer', frame: 'render.Frame', T_world_cam: FloatArray,
                   visibility: list[tuple[FloatArray, list[bool]]] | None = None
                   ) -> list[dict[str, object]]:
     """
@@ -195,13 +199,14 @@ def validate(gt: dict[str, object]) -> None:
 
 
 @functools.lru_cache(maxsize=2)
-def _renderer(scene_key: str, camera_key: str) -> render.Renderer:
+def _renderer(scene_key: str, camera_key: str) -> 'render.Renderer':
+    from absscale_ros.sim import render
     sc = json.loads(scene_key)
     scene: Scene = scenes.build_scene(sc['name'], sc['seed'], sc['variant'])
     return render.Renderer(scene, camera_from_json(json.loads(camera_key)))
 
 
-def renderer_for(gt: dict[str, object]) -> render.Renderer:
+def renderer_for(gt: dict[str, object]) -> 'render.Renderer':
     """The renderer of the bag's scene and camera (rebuilt from name + seed + variant)."""
     _need(gt.get('sim_version') == scenes.SIM_VERSION,
           f'sim_version {gt.get("sim_version")} != this renderer {scenes.SIM_VERSION}')
