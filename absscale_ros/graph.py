@@ -39,12 +39,20 @@ SFM_STATUS = 'sfm: reconstruction'  # its diagnostics count the keyframes a live
 DRAIN_LIMIT_S = 300.0  # after the bag: the longest wait for the graph to catch up
 STALLED_S = 10.0  # nothing moved this long: the graph is not catching up, stop waiting
 # A split run's other processes (RunOptions.split), one per group; the rest stay in the runner.
-SPLIT_GROUPS = (('vertex_detector',), ('sfm', 'scale', 'dense'))
+# The nodes that take every decoded frame share one process: a 2.7 MB frame sent to another
+# process cost ~1.2 ms of CPU to publish and ~1.5 ms to take (Fast DDS shared memory, measured
+# apart), against ~0.7 ms for both within one. With ingest and the selector in the runner and
+# the detector apart, 60 s bag under load: CPU 67.1 / 64.7 s (runner 19.6, detector 22.5,
+# sfm + scale 23.3) -> 60.8 / 61.3 s (runner 3.9, frames 32.8, sfm + scale 22.1), wall x0.77 /
+# x1.00 interleaved; the runner only replays the bag (JPEG) and watches.
+SPLIT_GROUPS = (('frame_ingest', 'vertex_detector', 'keyframe_selector'),
+                ('sfm', 'scale', 'dense'))
 # ... and the niceness added to a group's process. The sfm is a split run's critical path: its
 # final batch comes last, after every keyframe it queued. At the detector's priority it worked
 # off its queue (a 3.9 s batch among it on the 60 s bag) alone after the replay; with the
 # detector at nice 5 it keeps up and the frames wait instead (replay end to exit 8.3-11.3 s ->
-# 7.2-8.5 s, 4 alternating pairs; the same factor and cloud).
+# 7.2-8.5 s, 4 alternating pairs; the same factor and cloud). Now the frame nodes' process
+# (see SPLIT_GROUPS): at nice 0 it took x0.91 / x1.07 the wall, 2 pairs under load, no better.
 SPLIT_NICE = {'vertex_detector': 5}
 # With the dense node on, it owns /scaled_cloud and the sparse metric cloud moves here.
 SPARSE_METRIC_TOPIC = '/absscale/sparse_cloud_metric'
@@ -78,9 +86,10 @@ class RunOptions:
     record: str | None = None  # MCAP file for every graph topic (not the bag's own)
     drain_s: float = 0.3
     processes: bool = False  # each pipeline node in its own process, over real DDS
-    # Offline, not --processes: the detector, and the SfM with the scale node, in processes of
-    # their own, so a run uses both cores (opt-in: under load it once lost a keyframe's input at
-    # start, and the indoor sample then claimed no scale; one process is the tested default).
+    # Offline, not --processes: the frame nodes (ingest, detector, keyframe selector), and the
+    # SfM with the scale node, in processes of their own (SPLIT_GROUPS), so a run uses both
+    # cores (opt-in: under load it once lost a keyframe's input at start, and the indoor sample
+    # then claimed no scale; one process is the tested default).
     split: bool = False
 
 
