@@ -255,7 +255,7 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
                                  dist, small)
     if not found and cfg.line_candidates:
         more = sheet_candidates.colour_quads(work, cands.regions, cfg) + \
-            sheet_candidates.detached_quads(work, cfg)
+            sheet_candidates.detached_quads(work, cfg) + sheet_candidates.chroma_quads(work, cfg)
         _accept_quads(image_bgr, [lines.full_px(q, scale) for q in more], band, cfg, K, found,
                       dist)
     for closed in (False, True):

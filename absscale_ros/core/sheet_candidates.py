@@ -38,6 +38,8 @@ FREE_INSET_PX = 2.0  # a 3x3-dilated Canny line keeps edge-free regions this far
 COLOUR_SEEDS = 3  # whitest regions whose own colour is looked for again (``colour_quads``)
 COLOUR_TOLS = (12, 20, 30)  # largest channel difference from that colour, 0-255
 SPLIT_MIN_AREA = 0.1  # of the rough area threshold: the smallest cut-off part of a sheet joined
+CHROMA_CLOSE_PX = 5  # disc closing text away before the chroma thresholds (``chroma_quads``)
+CHROMA_OFFSETS = (-4, 0, 4)  # b* thresholds around its Otsu threshold (``chroma_quads``)
 DETACH_PX = 9  # diameter of the opening that cuts bright blobs off a page (``detached_quads``)
 
 
@@ -304,6 +306,22 @@ def detached_quads(work_bgr: npt.NDArray[np.uint8], cfg: 'SheetConfig') -> list[
     for mask in masks(work_bgr, whiteness(work_bgr), cfg):
         _add_quads(quads, cv2.morphologyEx(mask, cv2.MORPH_OPEN, disc), work_bgr, cfg,
                    plausible_only=True)
+    return quads
+
+
+def chroma_quads(work_bgr: npt.NDArray[np.uint8], cfg: 'SheetConfig') -> list[Array]:
+    """
+    Return rough (4, 2) quadrilaterals, work px, of the regions on either side of Otsu
+    thresholds of the blue-yellow chroma (CIELAB b*, after closing away dark text): white
+    paper is bluer than a warm desk of the same brightness (or yellower than a cold one).
+    """
+    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (CHROMA_CLOSE_PX,) * 2)
+    b = cv2.cvtColor(cv2.morphologyEx(work_bgr, cv2.MORPH_CLOSE, disc), cv2.COLOR_BGR2LAB)[..., 2]
+    quads: list[Array] = []
+    otsu, _ = cv2.threshold(b, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    for t in (otsu + d for d in CHROMA_OFFSETS):
+        for flag in (cv2.THRESH_BINARY_INV, cv2.THRESH_BINARY):
+            _add_quads(quads, _clean(cv2.threshold(b, t, 1, flag)[1]), work_bgr, cfg)
     return quads
 
 

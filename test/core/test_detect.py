@@ -9,8 +9,8 @@ import cv2
 import numpy as np
 import pytest
 
-from absscale_ros.core import (detect, detect_cube, detect_sheet, lines, quads, sheet_checks,
-                               targets)
+from absscale_ros.core import (detect, detect_cube, detect_sheet, lines, quads, sheet_candidates,
+                               sheet_checks, targets)
 
 sys.path.insert(0, str(Path(__file__).parent))
 import synth_targets as st  # noqa: E402
@@ -362,6 +362,24 @@ def test_real_pages_on_textured_desks_found_once_their_text_is_closed_away():
         assert detect_sheet.detect_sheets(img, replace(cfg, content_close_px=0)) == [], name
         dets = detect_sheet.detect_sheets(img, cfg)
         assert len(dets) == 1 and _sheet_errors(dets[0], true_px)[1].max() < 0.007, name
+
+
+def test_real_pages_on_a_light_wood_desk_outlined_by_their_chroma():
+    """
+    On the light wood desk (background01) no whiteness threshold separates the page from the
+    desk; its blue-yellow chroma (b*) does, within a few work px of the annotated corners.
+    """
+    cfg = detect_sheet.SheetConfig(sheet='a4', line_candidates=True)
+    for row, img, true_px in _smartdoc():
+        if row['bg_name'] != 'background01':
+            continue
+        work = sheet_candidates.shrink(img, 0.25, None)
+
+        def off(qs):
+            return min((np.abs(np.roll(lines.full_px(q, 0.25), k, 0) - true_px).max()
+                        for q in qs for k in range(4)), default=np.inf)
+        assert off(sheet_candidates.Candidates(work, cfg).quads) > 100.0, row['image_path']
+        assert off(sheet_candidates.chroma_quads(work, cfg)) < 12.0, row['image_path']
 
 
 def test_segment_lines_follow_real_page_sides():
