@@ -9,7 +9,8 @@ from absscale_ros.core.types import CameraModel
 
 FloatArray = npt.NDArray[np.float64]
 IndexArray = npt.NDArray[np.int64]
-DETECTORS = ('sift', 'orb', 'akaze')  # SURF is patented and not in OpenCV's main modules
+# SURF is patented and AKAZE left OpenCV's main modules in 5.0 (cv2.AKAZE_create is gone).
+DETECTORS = ('sift', 'orb')
 
 
 @dataclass(frozen=True)
@@ -82,9 +83,7 @@ def undistort_px(camera: CameraModel, pixels_px: FloatArray) -> FloatArray:
 def _detector(cfg: FeatureConfig) -> cv2.Feature2D:
     if cfg.detector == 'sift':
         return cv2.SIFT_create(nfeatures=cfg.max_features, contrastThreshold=cfg.sift_contrast)
-    if cfg.detector == 'orb':
-        return cv2.ORB_create(nfeatures=cfg.max_features)
-    return cv2.AKAZE_create()
+    return cv2.ORB_create(nfeatures=cfg.max_features)
 
 
 def detect(image_bgr: npt.NDArray[np.uint8], camera: CameraModel, cfg: FeatureConfig) -> Features:

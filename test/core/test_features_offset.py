@@ -52,3 +52,16 @@ def test_offset_leaves_orb_alone(frame):
     a = feat.detect(image, camera, cfg)
     b = feat.detect(image, camera, replace(cfg, sift_offset_px=0.25))
     assert len(a.keypoints_px) > 100 and np.array_equal(a.keypoints_px, b.keypoints_px)
+
+
+@pytest.mark.parametrize('name', feat.DETECTORS)
+def test_every_offered_detector_exists(frame, name):
+    """Each detector the config accepts must exist in the installed OpenCV (5.0 dropped
+    AKAZE from its main modules, which only failed once a map was built)."""
+    image, camera = frame
+    assert len(feat.detect(image, camera, feat.FeatureConfig(detector=name)).keypoints_px) > 100
+
+
+def test_an_unknown_detector_is_refused_at_configuration():
+    with pytest.raises(ValueError, match='akaze'):
+        feat.FeatureConfig(detector='akaze')
