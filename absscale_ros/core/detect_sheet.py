@@ -152,8 +152,12 @@ class SheetConfig:
             raise ValueError(f'min_area_frac must be in (0, 1), got {self.min_area_frac}')
         if not 0.0 <= self.roundness_min < self.roundness_max <= 1.0:
             raise ValueError('need 0 <= roundness_min < roundness_max <= 1')
-        if self.work_max_side_px < 64:
-            raise ValueError(f'work_max_side_px too small: {self.work_max_side_px}')
+        if min(self.work_max_side_px, self.line_work_max_side_px,
+               self.content_work_max_side_px) < 64:  # (0 failed in cv2.resize, mid-run)
+            raise ValueError('work_max_side_px, line_work_max_side_px and '
+                             'content_work_max_side_px must be >= 64')
+        if self.content_close_px < 0:
+            raise ValueError(f'content_close_px must be >= 0, got {self.content_close_px}')
         if not 0.0 < self.focal_range[0] <= self.focal_range[1]:
             raise ValueError(f'focal_range must be 0 < low <= high, got {self.focal_range}')
         if not 0.0 < self.aspect_floor <= self.aspect_tol:

@@ -531,3 +531,7 @@ def test_bad_config_raises():
         detect.DetectConfig(target='banana')
     with pytest.raises(ValueError):
         detect_cube.CubeConfig(roundness_min=0.9, roundness_max=0.5)
+    for bad in ({'line_work_max_side_px': 0}, {'content_work_max_side_px': 0},
+                {'content_close_px': -1}):  # not a cv2.resize error in the first frame
+        with pytest.raises(ValueError):
+            detect_sheet.SheetConfig(**bad)
