@@ -1,6 +1,9 @@
 """The shipped samples end to end: a true scale in its own interval (outdoor: twice the same)."""
 from pathlib import Path
 
+import cv2
+import pytest
+
 from absscale_ros import graph, params
 from absscale_ros.sim import groundtruth
 from absscale_ros.tools import bench_scale
@@ -16,8 +19,14 @@ def _run(split: bool = False) -> tuple[dict, dict]:
     return report, latest
 
 
-def test_outdoor_sample_scale_is_true_and_repeatable() -> None:
-    first, latest = _run()
+@pytest.fixture(scope='module')
+def one_process() -> tuple[dict, dict]:
+    """The outdoor sample in one process, once for the tests below."""
+    return _run()
+
+
+def test_outdoor_sample_scale_is_true_and_repeatable(one_process: tuple[dict, dict]) -> None:
+    first, latest = one_process
     scale = first['nodes']['scale']
     assert scale['observable'], scale
     msgs = {t: deserialize_message(d, c) for t, (c, d) in latest.items()}
@@ -31,6 +40,21 @@ def test_outdoor_sample_scale_is_true_and_repeatable() -> None:
     assert second['nodes']['scale']['factor'] == scale['factor']
     clouds = [deserialize_message(d, c) for c, d in (latest['/scaled_cloud'],
                                                      latest2['/scaled_cloud'])]
+    assert clouds[0] == clouds[1]
+
+
+def test_split_run_gives_the_factor_and_cloud_of_one_process(
+        one_process: tuple[dict, dict]) -> None:
+    """--split (frame nodes, and sfm with scale, in processes of their own, one OpenCV thread
+    each) must not change the numbers: the random frames of test_run_end_to_end have no
+    object, so only this bag checks the factor and the cloud across layouts."""
+    first, latest = one_process
+    threads = cv2.getNumThreads()
+    split, latest_split = _run(split=True)
+    assert cv2.getNumThreads() == threads  # the runner's OpenCV threads given back
+    assert split['nodes']['scale']['factor'] == first['nodes']['scale']['factor']
+    clouds = [deserialize_message(d, c) for c, d in (latest['/scaled_cloud'],
+                                                     latest_split['/scaled_cloud'])]
     assert clouds[0] == clouds[1]
 
 
