@@ -27,11 +27,23 @@ STEP_PX = 0.5  # sample spacing across the side
 PROFILES = 16  # profiles per side
 
 
-def _shared(face_corners: list[Array], f: int, i: int, tol: float) -> bool:
-    """Return True when another face has corners at both ends of side ``i`` of face ``f``."""
-    c0, c1 = face_corners[f][i], face_corners[f][(i + 1) % 4]
-    return any(np.hypot(*(c - c0).T).min() < tol and np.hypot(*(c - c1).T).min() < tol
-               for g, c in enumerate(face_corners) if g != f)
+def _shared(face_corners: list[Array], tol_frac: float, min_tol: float
+            ) -> npt.NDArray[np.bool_]:
+    """
+    Return (F, 4) True where another face has corners at both ends of side ``i`` of face
+    ``f`` (within ``max(min_tol, tol_frac * side length)``), for all sides at once.
+    """
+    pts = np.concatenate(face_corners)  # (4F, 2)
+    nf = len(face_corners)
+    d = np.hypot(pts[:, None, 0] - pts[None, :, 0], pts[:, None, 1] - pts[None, :, 1])
+    near = d.reshape(4 * nf, nf, 4).min(axis=2)  # corner -> nearest corner of each face
+    ends = np.arange(4 * nf).reshape(nf, 4)
+    nxt = np.roll(ends, -1, axis=1)
+    length = np.hypot(*(pts[nxt.ravel()] - pts[ends.ravel()]).T).reshape(nf, 4)
+    tol = np.maximum(min_tol, tol_frac * length)[..., None]
+    both = (near[ends] < tol) & (near[nxt] < tol)  # (F, 4, F)
+    both[np.arange(nf), :, np.arange(nf)] = False  # not the face itself
+    return both.any(axis=2)
 
 
 def _widths(inside: npt.NDArray[np.bool_], offs: Array, ks: npt.NDArray[np.int64]) -> Array:
@@ -103,12 +115,13 @@ def strip_faces(image_bgr: npt.NDArray[np.uint8], corners: list[Array], colours:
     ts = 0.15 + 0.7 * (np.arange(PROFILES) + 0.5) / PROFILES
     offs = np.arange(0.5, max_width + 1e-9, STEP_PX)
     cand = []  # (face, side, c0, c1, outward normal, offsets within half the side)
+    shared = _shared(corners, 0.1, 3.0)
     for f, cs in enumerate(corners):
         centre = cs.mean(axis=0)
         for i in range(4):
             c0, c1 = cs[i], cs[(i + 1) % 4]
             length = float(np.hypot(*(c1 - c0)))
-            if length < 8.0 or _shared(corners, f, i, max(3.0, 0.1 * length)):
+            if length < 8.0 or shared[f, i]:
                 continue
             k = int(np.searchsorted(offs, min(max_width, 0.5 * length) + 1e-9))
             cand.append((f, i, c0, c1, lines.line_through(c0, c1, centre)[:2], k))

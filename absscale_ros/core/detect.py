@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from absscale_ros.core import detect_cube, detect_sheet, targets
+from absscale_ros.core import cube_track, detect_cube, detect_sheet, targets
 
 TARGET_CHOICES = ('letter', 'a4', 'custom', 'sheet', 'cube', 'auto')
 
@@ -71,7 +71,8 @@ class FrameDetections:
 
 def detect(image_bgr: npt.NDArray[np.uint8], cfg: DetectConfig,
            K: npt.NDArray[np.float64] | None = None,
-           dist: npt.NDArray[np.float64] | None = None) -> FrameDetections:
+           dist: npt.NDArray[np.float64] | None = None,
+           tracker: cube_track.CubeTracker | None = None) -> FrameDetections:
     """
     Run the configured detectors on one BGR image.
 
@@ -80,6 +81,8 @@ def detect(image_bgr: npt.NDArray[np.uint8], cfg: DetectConfig,
         estimate.
     :param dist: OpenCV distortion coefficients (CameraInfo D), used with ``K`` by the sheet
         aspect check; None for none.
+    :param tracker: for frames of one video in order: the cube searched first around where the
+        last frame showed it (``cube_track``; made with ``cfg.cube``); None: the whole frame.
     """
     if image_bgr.ndim != 3 or image_bgr.shape[2] != 3 or image_bgr.dtype != np.uint8:
         raise ValueError(f'need an (H, W, 3) uint8 image, got {image_bgr.shape} {image_bgr.dtype}')
@@ -92,7 +95,8 @@ def detect(image_bgr: npt.NDArray[np.uint8], cfg: DetectConfig,
         half = cv2.resize(image_bgr, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
     if cfg.target in ('cube', 'auto'):
         looked.append('cube')
-        found += detect_cube.detect_cubes(image_bgr, cfg.cube, K, half)
+        found += detect_cube.detect_cubes(image_bgr, cfg.cube, K, half) if tracker is None \
+            else tracker.detect(image_bgr, K, half)
     if sheet_cfgs:
         looked.append('sheet')
     for sheet_cfg in sheet_cfgs:

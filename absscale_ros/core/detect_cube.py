@@ -74,6 +74,16 @@ class CubeConfig:
     :param split_canny: (low, high) Canny thresholds on the work image of that cut's edges.
     :param split_min_depth_px: smallest depth of a concave corner of a region's outline the
         cut goes along a side from, work-image px.
+    :param small_cube_frac: a cube the sharp pass poses whose area is under this fraction of
+        the paper's smallest (``min_area_frac``) is the cube in view, too far away: the frame's
+        retries (split regions, blur) are skipped (0: never).
+    :param track_full_every: frame after frame (``cube_track``), the whole frame is searched at
+        least every this many frames, else only a box around the last frame's cubes (1: every
+        frame whole).
+    :param track_margin_frac: that box is the cubes' own grown by this fraction of its larger
+        side each way ...
+    :param track_margin_px: ... and by this many px more (the motion of one frame).
+    :param track_max_area_frac: a box larger than this fraction of the frame: the whole frame.
     """
 
     hue_red_deg: tuple[float, float] = (340.0, 20.0)
@@ -100,6 +110,11 @@ class CubeConfig:
     split_regions: bool = True
     split_canny: tuple[float, float] = (40.0, 80.0)
     split_min_depth_px: float = 3.0
+    small_cube_frac: float = 0.8
+    track_full_every: int = 10
+    track_margin_frac: float = 0.5
+    track_margin_px: float = 40.0
+    track_max_area_frac: float = 0.5
 
     def __post_init__(self) -> None:
         for name in ('hue_red_deg', 'hue_yellow_deg', 'hue_purple_deg'):
@@ -115,6 +130,10 @@ class CubeConfig:
                              f'got {self.split_canny}')
         if self.split_min_depth_px <= 0.0:
             raise ValueError(f'split_min_depth_px must be > 0, got {self.split_min_depth_px}')
+        if self.track_full_every < 1 or self.track_margin_frac < 0.0 or \
+                self.track_margin_px < 0.0 or not 0.0 < self.track_max_area_frac <= 1.0:
+            raise ValueError('need track_full_every >= 1, track margins >= 0 and '
+                             'track_max_area_frac in (0, 1]')
         if not 1 <= self.min_faces <= 3:
             raise ValueError(f'min_faces must be 1, 2 or 3, got {self.min_faces}')
 
@@ -177,18 +196,21 @@ def colour_masks(hsv: npt.NDArray[np.uint8], cfg: CubeConfig
 
 
 def _face_quads(mask: npt.NDArray[np.uint8], cfg: CubeConfig, scale: float = 1.0,
-                failed: list[npt.NDArray[np.int32]] | None = None
+                failed: list[npt.NDArray[np.int32]] | None = None,
+                min_area: float | None = None
                 ) -> tuple[list[tuple[Array, npt.NDArray[np.int32]]], npt.NDArray[np.uint8]]:
     """
     Return (rough quad, contour) of mask components that pass the paper's tests, and the
     opened mask; add to ``failed`` the contours of those big enough that fail the others.
+    ``min_area``: smallest face px (default: of a mask the size of the work image).
     """
     kernel = np.ones((3, 3), np.uint8)
     # The paper's opening is on the full image: on a work image ``scale`` times as big, as
     # many 3x3 passes remove as thin a strip (a face seen almost edge-on survives).
     passes = _opening_passes(cfg, scale)
     mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, kernel, iterations=passes)
-    min_area = _min_face_area(cfg, mask.shape)
+    if min_area is None:
+        min_area = _min_face_area(cfg, mask.shape)
     out: list[tuple[Array, npt.NDArray[np.int32]]] = []
     if cv2.countNonZero(mask) < min_area:
         return out, mask
@@ -404,28 +426,67 @@ def rough_faces(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
 
 
 def _rough(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
-           half: npt.NDArray[np.uint8] | None = None
+           half: npt.NDArray[np.uint8] | None = None, roi: tuple[int, int, int, int] | None = None
            ) -> tuple[list[tuple[str, Array, Array]], '_Regions']:
-    """Return ``rough_faces`` and the mask regions behind them, for ``_split_faces``."""
+    """
+    Return ``rough_faces`` and the mask regions behind them, for ``_split_faces``; with
+    ``roi`` (x0, y0, x1, y1 full px) the mask stage looks only there.
+    """
     h, w = image_bgr.shape[:2]
     scale = min(1.0, cfg.work_max_side_px / max(h, w))
     size = (round(w * scale), round(h * scale))
+    box = (0, 0) + size if roi is None else _work_box(roi, scale, size)
     if half is not None and half.shape[1::-1] == size and (w, h) == (2 * size[0], 2 * size[1]):
-        work = half
+        work = half[box[1]:box[3], box[0]:box[2]]
+    elif roi is not None and (w, h) == (2 * size[0], 2 * size[1]):
+        # A 2x2 box filter: the crop's own reduction is the full reduction's crop.
+        x0, y0, x1, y1 = box
+        work = cv2.resize(image_bgr[2 * y0:2 * y1, 2 * x0:2 * x1], (x1 - x0, y1 - y0),
+                          interpolation=cv2.INTER_AREA)
     else:
         work = cv2.resize(image_bgr, size, interpolation=cv2.INTER_AREA)
+        work = work[box[1]:box[3], box[0]:box[2]]
     hsv = cv2.cvtColor(work, cv2.COLOR_BGR2HSV)
+    origin = np.array(box[:2], np.int32)
     found = []  # (colour, rough quad, outline), full-resolution px
-    regions = _Regions(work, scale, [])
+    items: list[tuple[str, npt.NDArray[np.int32], npt.NDArray[np.uint8], int]] = []
+    min_area = _min_face_area(cfg, size[::-1])
     for colour, mask in colour_masks(hsv, cfg).items():
         failed: list[npt.NDArray[np.int32]] = []
-        quads, opened = _face_quads(mask, cfg, scale, failed)
+        quads, opened = _face_quads(mask, cfg, scale, failed, min_area)
         for quad, contour in quads:
-            regions.items.append((colour, contour, opened, len(found)))
-            found.append((colour, lines.full_px(quad, scale), _full_px(contour, scale)))
-        regions.items.extend((colour, c, opened, -1) for c in failed)
+            items.append((colour, contour, opened, len(found)))
+            found.append((colour, lines.full_px(quad + origin, scale),
+                          _full_px(contour + origin, scale)))
+        items.extend((colour, c, opened, -1) for c in failed)
     hough = _hough_sides([(q, c) for _, q, c in found], cfg)
-    return [(c, h, q) for (c, q, _), h in zip(found, hough)], regions
+    return ([(c, h, q) for (c, q, _), h in zip(found, hough)],
+            _Regions(work, scale, items, origin, _clipped(items, box, size, scale)))
+
+
+def _clipped(items: list[tuple[str, npt.NDArray[np.int32], npt.NDArray[np.uint8], int]],
+             box: tuple[int, int, int, int], size: tuple[int, int], scale: float) -> Array:
+    """
+    Return (M, 4) full-px boxes (x0, y0, x1, y1) of the regions that reach an edge of the
+    work-image ``box`` inside the work image (they may go on past it).
+    """
+    w, h = box[2] - box[0], box[3] - box[1]
+    out = []
+    for _, c, _, _ in items:
+        x, y, bw, bh = cv2.boundingRect(c)
+        if (x == 0 < box[0]) or (y == 0 < box[1]) or (x + bw == w and box[2] < size[0]) or \
+                (y + bh == h and box[3] < size[1]):
+            out.append(lines.full_px(np.array([x, y, x + bw - 1, y + bh - 1], float)
+                                     + np.tile(box[:2], 2), scale))
+    return np.array(out).reshape(-1, 4)
+
+
+def _work_box(roi: tuple[int, int, int, int], scale: float, size: tuple[int, int]
+              ) -> tuple[int, int, int, int]:
+    """Return a full-px box (x0, y0, x1, y1) as a work-image box, clipped to ``size``."""
+    x0, y0 = (max(0, int(np.floor(v * scale))) for v in roi[:2])
+    x1, y1 = (min(m, int(np.ceil(v * scale))) for v, m in zip(roi[2:], size))
+    return x0, y0, max(x1, x0 + 1), max(y1, y0 + 1)
 
 
 def _full_px(contour: npt.NDArray[np.int32], scale: float) -> Array:
@@ -436,13 +497,17 @@ def _full_px(contour: npt.NDArray[np.int32], scale: float) -> Array:
 @dataclass(frozen=True, eq=False)
 class _Regions:
     """
-    The work image, its scale, and per mask region (colour, outline work px, opened colour
-    mask, index of its rough face or -1 when it failed the face tests).
+    The work image (or the part of it searched), its scale, and per mask region (colour,
+    outline px of that part, opened colour mask, index of its rough face or -1 when it failed
+    the face tests); ``origin`` (2,) where that part starts in the work image; ``clipped``
+    (M, 4) full-px boxes of the regions reaching an edge of that part inside the work image.
     """
 
     work: npt.NDArray[np.uint8]
     scale: float
     items: list[tuple[str, npt.NDArray[np.int32], npt.NDArray[np.uint8], int]]
+    origin: npt.NDArray[np.int32]
+    clipped: Array
 
 
 def _split_faces(image_bgr: npt.NDArray[np.uint8], regions: _Regions,
@@ -453,7 +518,8 @@ def _split_faces(image_bgr: npt.NDArray[np.uint8], regions: _Regions,
     cube colour (a cube shows two faces at least: a red building on its own is left alone).
     """
     passes = _opening_passes(cfg, regions.scale)
-    min_area = _min_face_area(cfg, regions.work.shape)
+    h, w = image_bgr.shape[:2]
+    min_area = _min_face_area(cfg, (round(h * regions.scale), round(w * regions.scale)))
 
     def face_quad(c: npt.NDArray[np.int32]) -> Array | None:
         return lines.rough_quad(c) if _face_test(c, cfg, min_area) else None
@@ -468,6 +534,7 @@ def _split_faces(image_bgr: npt.NDArray[np.uint8], regions: _Regions,
             continue
         for piece in cube_split.split(contour, mask, regions.work, face_quad, cfg.split_canny,
                                       cfg.split_min_depth_px, passes):
+            piece = piece + regions.origin
             quad = lines.rough_quad(piece)
             found.append((colour, lines.full_px(quad, regions.scale),
                           _full_px(piece, regions.scale)))
@@ -499,7 +566,9 @@ def _strips(image_bgr: npt.NDArray[np.uint8], faces: list[Face], cfg: CubeConfig
 
 
 def detect_cubes(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
-                 K: Array | None = None, half: npt.NDArray[np.uint8] | None = None
+                 K: Array | None = None, half: npt.NDArray[np.uint8] | None = None,
+                 roi: tuple[int, int, int, int] | None = None,
+                 small: list[targets.TargetDetection] | None = None
                  ) -> list[targets.TargetDetection]:
     """
     Find tri-colour cubes in a BGR image.
@@ -507,15 +576,28 @@ def detect_cubes(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
     :param image_bgr: (H, W, 3) uint8 BGR image.
     :param K: (3, 3) intrinsics px for the cube shape check, or None to estimate.
     :param half: the image box-filtered to half its size, when another detector made it.
+    :param roi: (x0, y0, x1, y1) full px: look only there, and find nothing when a cube comes
+        within ``track_margin_px / 2`` of the box's edge inside the image, or a colour region
+        reaching that edge within ``strip_max_px`` of a cube (either may go on past it):
+        ``cube_track`` then searches the whole frame.
+    :param small: when nothing is found but cubes too small (``small_cube_frac``), they are
+        added here (for ``cube_track``: the cube in view, too far away).
     :returns: one detection per cube, with vertices, ids (see ``targets``), edges and
         per-face polygons.
     """
-    rough, regions = _rough(image_bgr, cfg, half)
+    rough, regions = _rough(image_bgr, cfg, half, roi)
     Ks = [K] if K is not None else [cube_geometry.default_K(image_bgr.shape, f)
                                     for f in cfg.focal_fracs]
     refined = _refine_each(image_bgr, rough, cfg)
     faces = [f for f in refined if f is not None]
-    out = _cubes(image_bgr, list(faces), cfg, Ks)
+    tiny: list[targets.TargetDetection] = []
+    out = _cubes(image_bgr, list(faces), cfg, Ks, small=tiny)
+    if tiny and not out:
+        # The cube in view is posed, but too far away: the retries would find it again.
+        if small is not None and (roi is None or all(
+                _inside(d, roi, regions.clipped, image_bgr.shape, cfg) for d in tiny)):
+            small += tiny
+        return []
     if not out and cfg.split_regions:
         # A face joined with an object of its own colour: cut such regions into faces.
         split = _split_faces(image_bgr, regions, refined, cfg)
@@ -528,14 +610,35 @@ def detect_cubes(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
         # them, and the mask stops short of a side shared with another face. Where nothing
         # is found, look again for the sides at the mid level of wider ramps.
         out = _cubes(image_bgr, _refine_faces(image_bgr, rough, cfg, band), cfg, Ks, True)
+    if roi is not None and not all(_inside(d, roi, regions.clipped, image_bgr.shape, cfg)
+                                   for d in out):
+        return []
     return out
 
 
+def _inside(det: targets.TargetDetection, roi: tuple[int, int, int, int], clipped: Array,
+            shape: tuple[int, ...], cfg: CubeConfig) -> bool:
+    """Return True when a cube found in ``roi`` is clear of its edges (``detect_cubes``)."""
+    pts = np.concatenate([p for _, p in det.polygons] + [det.vertices_px])
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    m = 0.5 * cfg.track_margin_px
+    h, w = shape[:2]
+    if (roi[0] > 0 and lo[0] < roi[0] + m) or (roi[1] > 0 and lo[1] < roi[1] + m) or \
+            (roi[2] < w and hi[0] > roi[2] - 1 - m) or (roi[3] < h and hi[1] > roi[3] - 1 - m):
+        return False
+    g = cfg.strip_max_px
+    return not ((clipped[:, :2] <= hi + g).all(axis=1) &
+                (clipped[:, 2:] >= lo - g).all(axis=1)).any()
+
+
 def _cubes(image_bgr: npt.NDArray[np.uint8], faces: list[Face], cfg: CubeConfig,
-           Ks: list[Array], blurred: bool = False) -> list[targets.TargetDetection]:
+           Ks: list[Array], blurred: bool = False,
+           small: list[targets.TargetDetection] | None = None
+           ) -> list[targets.TargetDetection]:
     """
     Return the cubes that ``faces`` (refined, not yet with strips) assemble into;
-    ``blurred`` for faces of the blur retry.
+    ``blurred`` for faces of the blur retry. Add to ``small`` the cubes they pose that are
+    smaller than ``cfg.small_cube_frac`` of the paper's area (otherwise not posed at all).
     """
     if not faces:
         return []
@@ -566,12 +669,14 @@ def _cubes(image_bgr: npt.NDArray[np.uint8], faces: list[Face], cfg: CubeConfig,
         if len(colours | {faces[f].colour for f in members}) < cfg.min_faces:
             continue
         area = sum(cv2.contourArea(faces[f].corners_px.astype(np.float32)) for f in members)
-        if area < cfg.min_area_frac * image_bgr.shape[0] * image_bgr.shape[1]:
+        min_area = cfg.min_area_frac * image_bgr.shape[0] * image_bgr.shape[1]
+        tiny = area < cfg.small_cube_frac * min_area and small is not None
+        if area < min_area and not tiny:
             continue  # the paper's area test, on the whole cube
         det = cube_assembly.cube_detection(
             [faces[f] for f in members], [labels[4 * f:4 * f + 4] for f in members],
             Ks, image_bgr.shape, cfg.shape_tol_frac)
         if det is not None:
-            out.append(det)
+            (small if tiny and small is not None else out).append(det)
     out.sort(key=lambda d: -d.score)
     return out

@@ -30,7 +30,7 @@ import time
 from typing import Any
 
 from absscale_ros import conversions
-from absscale_ros.core import detect, detect_cube, detect_sheet, errors
+from absscale_ros.core import cube_track, detect, detect_cube, detect_sheet, errors
 from absscale_ros.nodes import common
 import numpy as np
 from rclpy.node import Node
@@ -64,6 +64,8 @@ class VertexDetectorNode(Node):
             target=target, auto_sheets=tuple(auto_sheets),
             sheet=_declare(self, 'sheet', detect_sheet.SheetConfig()),
             cube=_declare(self, 'cube', detect_cube.CubeConfig()))
+        # Frames come in order: the cube is looked for first where the last frame showed it.
+        self._tracker = cube_track.CubeTracker(self._cfg.cube)
         in_qos = common.SENSOR if qos == 'sensor_data' else common.RELIABLE
         self._vertices_pub = self.create_publisher(PointCloud2, '/absscale/vertices',
                                                    common.RELIABLE)
@@ -99,7 +101,7 @@ class VertexDetectorNode(Node):
         try:
             image = conversions.image_msg_to_bgr(msg)
             t0 = time.perf_counter()
-            result = detect.detect(image, self._cfg, self._K, self._dist)
+            result = detect.detect(image, self._cfg, self._K, self._dist, self._tracker)
             self._times_ms.append(1e3 * (time.perf_counter() - t0))
             cloud = detect.vertices_array(result)
             self._vertices_pub.publish(
@@ -131,6 +133,7 @@ class VertexDetectorNode(Node):
         return {'frames': self._frames, 'frames_with_target': self._with_target,
                 'frames_dropped': self._dropped, 'frames_skipped_by_rate': self._skipped,
                 'detection_rate': self._with_target / self._frames if self._frames else None,
+                'cube_frames_in_box': self._tracker.box_frames,  # settled near the last cube
                 'time_ms_median': float(np.median(times)),
                 'time_ms_p95': float(np.percentile(times, 95))}
 

@@ -6,11 +6,13 @@ all frames; true pixels are those of targets covering >= 0.5% of the image, so a
 target that is reported counts as false positives), corner error as delta / l (Table 2: l is
 the longer image edge at the vertex) and in px, detection rate over frames where a target
 covers >= 0.5% of the image, frames with vertices although no target is visible, and time per
-frame (decode excluded; one OpenCV thread unless --threads). Prints a table shaped like the
-paper's Table 2 with the paper's figures beside ours, every figure twice: over all frames and
-over the frames whose longest motion-blur streak (gt.json ``motion_blur_px``) is at most
-``--max-blur`` px. ``--dump-misses DIR`` writes each missed frame (a target covering the 0.5%
-area but no vertex matched) as a PNG with the detections and the true vertices drawn.
+frame (decode excluded; one OpenCV thread unless --threads). Frames go through the detector
+in order, as in the vertex_detector node (the cube looked for first around the last frame's:
+``cube_track``). Prints a table shaped like the paper's Table 2 with the paper's figures
+beside ours, every figure twice: over all frames and over the frames whose longest motion-blur
+streak (gt.json ``motion_blur_px``) is at most ``--max-blur`` px. ``--dump-misses DIR`` writes
+each missed frame (a target covering the 0.5% area but no vertex matched) as a PNG with the
+detections and the true vertices drawn.
 """
 import argparse
 import json
@@ -22,7 +24,7 @@ import cv2
 import numpy as np
 
 from absscale_ros import bagio, conversions
-from absscale_ros.core import detect
+from absscale_ros.core import cube_track, detect
 
 LABELS = ('red', 'yellow', 'purple', 'sheet')
 # The paper's Table 2: precision %, recall %, corner error delta / l.
@@ -165,6 +167,7 @@ def bench_bag(path: str, target: str, max_frames: int, tally: Tally,
     K = np.array(gt['camera']['K'], float)
     dist = np.array(gt['camera']['D'], float) if gt['camera'].get('D') else None
     cfg = detect.DetectConfig(target=target)
+    tracker = cube_track.CubeTracker(cfg.cube)  # frames in order, as the detector node sees them
     topic = gt['bag']['image_topic']
     with bagio.open_bag(path) as reader:
         for k, bm in enumerate(reader.messages([topic])):
@@ -175,7 +178,7 @@ def bench_bag(path: str, target: str, max_frames: int, tally: Tally,
             img = (conversions.compressed_msg_to_bgr(msg) if compressed
                    else conversions.image_msg_to_bgr(msg))
             t0 = time.process_time()  # CPU time of this process: other load does not count
-            res = detect.detect(img, cfg, K, dist)
+            res = detect.detect(img, cfg, K, dist, tracker)
             ms = 1e3 * (time.process_time() - t0)
             fr = gt['frames'][k]
             blur = float(fr.get('motion_blur_px') or 0.0)

@@ -5,7 +5,9 @@ CPU time per frame of the vertex detector against a baseline tree, interleaved f
   python test/bench/detect_cpu.py --base /tmp/base_tree /tmp/d5/*.mcap
 
 The baseline's ``absscale_ros`` is copied under another package name (its absolute imports
-renamed) so both detectors live in one process. Accuracy is `absscale bench detect`'s job.
+renamed) so both detectors live in one process. Frames go through each tree's detector in
+order, as in its vertex_detector node (with its ``cube_track.CubeTracker`` where it has one).
+Accuracy is `absscale bench detect`'s job.
 """
 import argparse
 import importlib
@@ -30,6 +32,14 @@ def load_base(tree: Path, into: Path) -> object:
     return importlib.import_module('absscale_base.core.detect')
 
 
+def _tracker(mod: object, target: str) -> object | None:
+    """A cube tracker of the tree of ``mod`` (its ``core.detect``) for ``target``, or None."""
+    track = getattr(mod, 'cube_track', None)
+    if track is None or target not in ('cube', 'auto'):
+        return None
+    return track.CubeTracker(mod.DetectConfig(target=target).cube)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('bags', nargs='+', help='simulator bags (BAG.gt.json beside each)')
@@ -45,6 +55,8 @@ def main() -> int:
             K = np.array(gt['camera']['K'], float)
             sheet = gt['scene']['variant']['target']
             sheet = 'letter' if sheet == 'cube' else sheet
+            trackers = {(name, target): _tracker(mod, target) for name, mod in
+                        (('base', old), ('new', new)) for target in (sheet, 'cube', 'auto')}
             with bagio.open_bag(path) as reader:
                 for k, raw in enumerate(reader.messages([gt['bag']['image_topic']])):
                     msg = reader.deserialize(raw)
@@ -56,7 +68,11 @@ def main() -> int:
                         for name, mod in order if k % 2 else order[::-1]:
                             cfg = mod.DetectConfig(target=target)
                             t0 = time.process_time()
-                            mod.detect(img, cfg, K)
+                            tracker = trackers[(name, target)]
+                            if tracker is None:
+                                mod.detect(img, cfg, K)
+                            else:
+                                mod.detect(img, cfg, K, tracker=tracker)
                             kind = target if target in ('cube', 'auto') else 'sheet'
                             times.setdefault((name, kind), []).append(
                                 1e3 * (time.process_time() - t0))
