@@ -14,6 +14,7 @@ metric scale). On the tuning bags the landmarks' error against the true surface 
 it is the observations' noise, not the poses').
 """
 from dataclasses import dataclass
+from itertools import chain, compress
 
 import numpy as np
 import numpy.typing as npt
@@ -46,14 +47,19 @@ class CloudConfig:
 
 def well_triangulated(m: sfm_map.SfmMap, K: FloatArray, cfg: CloudConfig) -> list[int]:
     """Ids of the landmarks of ``m`` that pass ``cfg``, in the map's order."""
-    ids = [i for i, lm in m.landmarks.items() if len(lm.obs_px) >= cfg.min_observations]
+    # Run after every keyframe over the whole segment: built with as little Python per
+    # observation as will do (map, chain and fromiter rather than generator loops).
+    lms_of = m.landmarks
+    ids = [i for i, lm in lms_of.items() if len(lm.obs_px) >= cfg.min_observations]
     if not ids:
         return []
-    lms = [m.landmarks[i] for i in ids]
-    counts = np.array([len(lm.obs_px) for lm in lms])
+    lms = list(map(lms_of.__getitem__, ids))
+    obs = [lm.obs_px for lm in lms]
+    counts = np.fromiter(map(len, obs), np.int64, len(obs))
     kf_order = {k: n for n, k in enumerate(m.keyframes)}
-    kf_row = np.fromiter((kf_order[k] for lm in lms for k in lm.obs_px), np.int64, counts.sum())
-    uv = np.concatenate([x for lm in lms for x in lm.obs_px.values()]).reshape(-1, 2)
+    kf_row = np.fromiter(map(kf_order.__getitem__, chain.from_iterable(obs)), np.int64,
+                         counts.sum())
+    uv = np.concatenate(list(chain.from_iterable(map(dict.values, obs)))).reshape(-1, 2)
     T = np.array([kf.T_world_cam for kf in m.keyframes.values()])[kf_row]
     pts = np.repeat(np.array([lm.point_world for lm in lms]), counts, axis=0)
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
@@ -71,7 +77,7 @@ def well_triangulated(m: sfm_map.SfmMap, K: FloatArray, cfg: CloudConfig) -> lis
         sub_starts = np.concatenate([[0], np.cumsum(sub)[:-1]])
         ok[ok] = sigma(T[rows], p_cam[rows], err[rows], K, sub, sub_starts,
                        cfg.min_noise_px) <= cfg.max_sigma_rel * scene
-    return [i for i, good in zip(ids, ok) if good]
+    return list(compress(ids, ok.tolist()))
 
 
 def sigma(T: FloatArray, p_cam: FloatArray, err: FloatArray, K: FloatArray,
@@ -110,7 +116,12 @@ def _widest_angles_deg(pts: FloatArray, T: FloatArray, counts: npt.NDArray[np.in
     rays /= np.maximum(np.linalg.norm(rays, axis=1, keepdims=True), 1e-12)
     group = np.repeat(np.arange(len(counts)), counts)
     mean = np.add.reduceat(rays, starts)[group]
-    order = np.lexsort((np.sum(rays * mean, axis=1), group))  # by group, then by closeness
-    first = order[starts]  # the ray least aligned with its group's mean
+    # The ray least aligned with its group's mean (the first of equals; NaN last, as a sort
+    # would put them): a minimum per group, without sorting every observation.
+    closeness = np.sum(rays * mean, axis=1)
+    least = np.fmin.reduceat(closeness, starts)[group]
+    first = np.minimum.reduceat(np.where(closeness == least, np.arange(len(rays)), len(rays)),
+                                starts)
+    first = np.where(first == len(rays), starts, first)  # a group of NaN only: its first
     cos = np.minimum.reduceat(np.sum(rays * rays[first][group], axis=1), starts)
     return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))

@@ -55,3 +55,27 @@ def test_thresholds_only_remove(engine: sfm.IncrementalSfm) -> None:
     assert counts[0] > counts[1] > counts[2]
     with pytest.raises(ValueError):
         landmark_quality.CloudConfig(min_observations=1)
+
+
+def test_widest_angle_anchor_is_the_least_aligned_ray(engine: sfm.IncrementalSfm) -> None:
+    """The anchor ray, found by a minimum per landmark, is the one a full sort finds (the
+    first of equals; a landmark of NaN rays gives NaN and leaves the others alone)."""
+    m = engine.current.map
+    lms = [lm for lm in m.landmarks.values() if len(lm.obs_px) >= 2]
+    counts = np.array([len(lm.obs_px) for lm in lms])
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    T = np.array([m.keyframes[k].T_world_cam for lm in lms for k in lm.obs_px])
+    pts = np.repeat(np.array([lm.point_world for lm in lms]), counts, axis=0)
+    pts[starts[1]:starts[1] + counts[1]] = np.nan
+    T[starts[2] + 1:starts[2] + counts[2], :3, 3] = T[starts[2], :3, 3]  # rays alike: ties
+
+    rays = pts - T[:, :3, 3]
+    rays /= np.maximum(np.linalg.norm(rays, axis=1, keepdims=True), 1e-12)
+    group = np.repeat(np.arange(len(counts)), counts)
+    mean = np.add.reduceat(rays, starts)[group]
+    first = np.lexsort((np.sum(rays * mean, axis=1), group))[starts]  # the sort: slow
+    cos = np.minimum.reduceat(np.sum(rays * rays[first][group], axis=1), starts)
+    want = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    got = landmark_quality._widest_angles_deg(pts, T, counts, starts)
+    assert np.isnan(got[1]) and np.array_equal(got, want, equal_nan=True)
+    assert (got > 1.0).sum() > len(got) // 2  # most landmarks seen under a real angle
