@@ -280,8 +280,8 @@ def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
         for node in nodes.values():
             node.destroy_node()
         rclpy.try_shutdown(context=context)
-        if lease is not None:
-            lease.release()
+        if lease is not None:  # not while node processes may still be on its domain
+            lease.release() if children is None else children.reaped(lease.release)
         if cv_threads is not None:
             common.one_opencv_thread(cv_threads)  # as it was for whatever runs next here
 

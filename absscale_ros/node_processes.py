@@ -13,8 +13,9 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
-from typing import Any
+from typing import Any, Callable
 
 from absscale_ros import params
 from absscale_ros.core.errors import AbsScaleError
@@ -27,6 +28,8 @@ PR_SET_PDEATHSIG = 1  # linux/prctl.h
 # A node process run by ``--processes`` (its own console-script main) finds the runner's folder
 # here and answers ``NodeProcesses.matched`` under its node's name.
 MATCH_DIR_ENV = 'ABSSCALE_MATCH_DIR'
+STOP_TIMEOUT_S = 30.0  # for a node process to report and exit once interrupted
+REPORT_POLL_S = 0.01  # how often ``stop`` looks for the reports
 MATCH_PERIOD_S = 0.05  # how often a node process looks for the runner's question
 
 
@@ -76,6 +79,9 @@ class NodeProcesses:
                     stdout=subprocess.DEVNULL, stderr=log, preexec_fn=functools.partial(
                         _start_child, max((nice or {}).get(name, 0) for name in group)))
         self._reports: dict[str, Any] | None = None
+        self._reaper = threading.Thread(target=self._reap, name='node_reaper')
+        self._after_reap: list[Callable[[], None]] = []
+        self._reap_lock, self._reaped = threading.Lock(), False
         self.cpu_s: dict[str, float | None] = {}  # CPU time of each node process
 
     def matched(self, local: list[Node]) -> bool:
@@ -121,21 +127,27 @@ class NodeProcesses:
             return ''
 
     def stop(self) -> dict[str, Any]:
-        """Interrupt every node (they write their reports) and collect the reports."""
+        """
+        Interrupt every node and collect the reports they write as they stop. The processes
+        are reaped on a thread of their own (``reaped``): what is left of a node process once
+        its report is written (its nodes' and DDS's teardown, ~0.5 s at a run's end) need not
+        delay the run's outputs. Not a daemon: the interpreter waits for it before it exits.
+        """
         if self._reports is not None:
             return self._reports
         for proc in self._procs.values():
             proc.send_signal(signal.SIGINT)
         reports: dict[str, Any] = {}
+        deadline = time.monotonic() + STOP_TIMEOUT_S
         for group in self.groups:
             label = '+'.join(group)
-            proc = self._procs[label]
-            try:
-                proc.wait(timeout=30)
-            except subprocess.TimeoutExpired:
+            proc, path = self._procs[label], Path(self._dir.name) / f'{label}.json'
+            # Its report, or its exit (one without a report); killed if it has neither in time.
+            while not path.exists() and proc.poll() is None and time.monotonic() < deadline:
+                time.sleep(REPORT_POLL_S)
+            if not path.exists() and proc.poll() is None:
                 proc.kill()
                 proc.wait()
-            path = Path(self._dir.name) / f'{label}.json'
             found = json.loads(path.read_text()) if path.exists() else {}
             if self._own_main:
                 found = {label: found} if found else {}
@@ -145,9 +157,31 @@ class NodeProcesses:
                 cpu = reports[name].pop('process_cpu_s', None)
                 if cpu is not None:
                     self.cpu_s[label] = cpu
-        self._dir.cleanup()
         self._reports = reports
+        self._reaper.start()
         return reports
+
+    def reaped(self, then: Callable[[], None]) -> None:
+        """Call ``then`` once every node process has exited (on the reaping thread)."""
+        with self._reap_lock:
+            if not self._reaped:
+                self._after_reap.append(then)
+                return
+        then()
+
+    def _reap(self) -> None:
+        deadline = time.monotonic() + STOP_TIMEOUT_S
+        for proc in self._procs.values():
+            try:
+                proc.wait(timeout=max(deadline - time.monotonic(), 0.0))
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        self._dir.cleanup()
+        with self._reap_lock:
+            self._reaped = True
+        for then in self._after_reap:
+            then()
 
 
 def _read(path: Path) -> str | None:
@@ -252,7 +286,7 @@ def group_main() -> None:
     finally:
         reports = {name: graph.node_report(node) for name, node in nodes.items()}
         reports[names[0]]['process_cpu_s'] = round(time.process_time(), 2)
-        Path(os.environ['ABSSCALE_REPORT']).write_text(json.dumps(reports, default=str))
+        common.write_whole(os.environ['ABSSCALE_REPORT'], json.dumps(reports, default=str))
         executor.shutdown()
         for node in nodes.values():
             node.destroy_node()

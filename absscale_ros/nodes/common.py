@@ -196,8 +196,15 @@ def _write_report(node: Any) -> None:
     if path and callable(getattr(node, 'report', None)):
         # The process's CPU time: which node used the machine (live runs share two cores).
         report = {**node.report(), 'process_cpu_s': round(time.process_time(), 2)}
-        with open(path, 'w') as f:
-            json.dump(report, f, default=str)
+        write_whole(path, json.dumps(report, default=str))
+
+
+def write_whole(path: str, text: str) -> None:
+    """Write ``text`` to ``path`` so that a reader never sees it half written (a rename)."""
+    import os
+    with open(f'{path}.tmp', 'w') as f:
+        f.write(text)
+    os.replace(f'{path}.tmp', path)
 
 
 def declare_config(node: Node, cfg: Any, prefix: str = '') -> Any:
