@@ -27,6 +27,7 @@ class CubeTracker:
     def __init__(self, cfg: detect_cube.CubeConfig) -> None:
         self._cfg = cfg
         self._box: tuple[int, int, int, int] | None = None  # full px, x0 y0 x1 y1
+        self._shape: tuple[int, ...] = ()  # (H, W) of the frame the box was found in
         self._since_full = 0
         self.box_frames = self.whole_frames = 0
 
@@ -35,6 +36,8 @@ class CubeTracker:
         """Return ``detect_cubes`` of this frame (``image_bgr`` (H, W, 3) uint8 BGR)."""
         cfg = self._cfg
         small: list[targets.TargetDetection] = []
+        if image_bgr.shape[:2] != self._shape:  # a new resolution: the box is of another frame
+            self._box, self._shape = None, image_bgr.shape[:2]
         if self._box is not None and self._since_full + 1 < cfg.track_full_every:
             out = detect_cube.detect_cubes(image_bgr, cfg, K, half, self._box, small)
             if out or small:

@@ -130,6 +130,8 @@ class CubeConfig:
                              f'got {self.split_canny}')
         if self.split_min_depth_px <= 0.0:
             raise ValueError(f'split_min_depth_px must be > 0, got {self.split_min_depth_px}')
+        if not 0.0 <= self.small_cube_frac <= 1.0:  # over 1: cubes the paper keeps dropped
+            raise ValueError(f'small_cube_frac must be in [0, 1], got {self.small_cube_frac}')
         if self.track_full_every < 1 or self.track_margin_frac < 0.0 or \
                 self.track_margin_px < 0.0 or not 0.0 < self.track_max_area_frac <= 1.0:
             raise ValueError('need track_full_every >= 1, track margins >= 0 and '

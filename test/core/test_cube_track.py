@@ -79,3 +79,18 @@ def test_cube_under_the_paper_area_is_handed_on_not_reported(frames) -> None:
     assert detect_cube.detect_cubes(img, detect_cube.CubeConfig(small_cube_frac=0.0), K) == []
     tracker = cube_track.CubeTracker(CFG)
     assert tracker.detect(img, K) == [] and tracker._box is not None
+
+
+def test_resolution_change_drops_the_box(frames) -> None:
+    """A box kept from a frame of another size (frame_ingest re-initialised) is not used: it
+    may lie outside the new frame (cv2.error on an empty crop, the detector's process gone)."""
+    images, K, _ = frames
+    tracker = cube_track.CubeTracker(CFG)
+    assert len(tracker.detect(images[120], K)) == 1 and tracker._box is not None
+    crop = np.ascontiguousarray(images[121][:200, :300])
+    assert tracker.detect(crop) == []
+    h, w = images[121].shape[:2]
+    third = cv2.resize(images[121], (w // 3, h // 3), interpolation=cv2.INTER_AREA)
+    assert len(tracker.detect(third)) == 1
+    with pytest.raises(ValueError):
+        detect_cube.CubeConfig(small_cube_frac=1.5)
