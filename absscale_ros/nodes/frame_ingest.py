@@ -67,6 +67,12 @@ class FrameIngestNode(Node):
         self.create_timer(1.0, self._publish_diagnostics)
 
     def _on_info(self, msg: CameraInfo) -> None:
+        if self._worker is None:
+            self._take_info(msg)
+        else:  # behind the frames that came before it, as inline: not applied to them
+            self._worker.submit(self._take_info, msg).add_done_callback(self._raise_in_log)
+
+    def _take_info(self, msg: CameraInfo) -> None:
         try:
             info = conversions.camera_info_to_model(msg)
         except errors.AbsScaleError as err:

@@ -1,5 +1,6 @@
 """frame_ingest and keyframe_selector as real rclpy nodes exchanging real messages."""
 from pathlib import Path
+import time
 
 from absscale_ros import conversions
 from absscale_ros.core import keyframes, replay
@@ -158,3 +159,28 @@ def test_selector_decides_frames_whose_vertices_never_come(context) -> None:
     assert spin_until(executor, lambda: selector.keyframe_stamps_ns == [23])
     assert selector.report()['unpaired'] == 3
     assert spin_until(executor, lambda: _stamps(probe.got['/absscale/keyframe_vertices']) == [23])
+
+
+def test_ingest_worker_applies_camera_info_in_arrival_order(context) -> None:
+    """A camera_info of a new resolution that comes while the worker is still decoding
+    frames of the old one is not applied to them (they would wait for an info that never
+    comes, and be dropped)."""
+    ingest = FrameIngestNode(context=context, parameter_overrides=[
+        Parameter('image_topic', value='/camera/image_raw'), Parameter('compressed', value=False),
+        Parameter('info_wait_s', value=0.5)])
+    decode = ingest._decode
+    ingest._decode = lambda msg: (time.sleep(0.4), decode(msg))[1]  # a slow frame
+    probe = Probe(context=context)
+    executor = _executor(context, ingest, probe)
+    assert spin_until(executor, lambda: probe.image.get_subscription_count() == 1
+                      and probe.info.get_subscription_count() == 1)
+    for (w, h), stamp in (((640, 360), 1), ((800, 600), 2)):
+        probe.info.publish(conversions.camera_model_to_info_msg(_model(w, h), stamp, 'cam'))
+        spin_until(executor, lambda: False, timeout_s=0.1)
+        probe.image.publish(_image(w, h, stamp))
+        spin_until(executor, lambda: False, timeout_s=0.1)
+    assert spin_until(executor, lambda: len(probe.got['/absscale/frames']) == 2, timeout_s=3.0)
+    spin_until(executor, lambda: False, timeout_s=0.6)
+    assert ingest.report()['frames_dropped'] == 0
+    assert [f.width for f in probe.got['/absscale/frames']] == [640, 800]
+    ingest.destroy_node()
