@@ -137,28 +137,31 @@ class NodeProcesses:
             return self._reports
         for proc in self._procs.values():
             proc.send_signal(signal.SIGINT)
-        reports: dict[str, Any] = {}
-        deadline = time.monotonic() + STOP_TIMEOUT_S
-        for group in self.groups:
-            label = '+'.join(group)
-            proc, path = self._procs[label], Path(self._dir.name) / f'{label}.json'
-            # Its report, or its exit (one without a report); killed if it has neither in time.
-            while not path.exists() and proc.poll() is None and time.monotonic() < deadline:
-                time.sleep(REPORT_POLL_S)
-            if not path.exists() and proc.poll() is None:
-                proc.kill()
-                proc.wait()
-            found = json.loads(path.read_text()) if path.exists() else {}
-            if self._own_main:
-                found = {label: found} if found else {}
-            for name in group:
-                reports[name] = found.get(name) or {
-                    'error': f'exit {proc.returncode}: {self._log(label)[-500:]}'}
-                cpu = reports[name].pop('process_cpu_s', None)
-                if cpu is not None:
-                    self.cpu_s[label] = cpu
+        try:
+            reports: dict[str, Any] = {}
+            deadline = time.monotonic() + STOP_TIMEOUT_S
+            for group in self.groups:
+                label = '+'.join(group)
+                proc, path = self._procs[label], Path(self._dir.name) / f'{label}.json'
+                # Its report, or its exit (one without a report); killed if it has neither in time.
+                while not path.exists() and proc.poll() is None and time.monotonic() < deadline:
+                    time.sleep(REPORT_POLL_S)
+                if not path.exists() and proc.poll() is None:
+                    proc.kill()
+                    proc.wait()
+                found = json.loads(path.read_text()) if path.exists() else {}
+                if self._own_main:
+                    found = {label: found} if found else {}
+                for name in group:
+                    reports[name] = found.get(name) or {
+                        'error': f'exit {proc.returncode}: {self._log(label)[-500:]}'}
+                    cpu = reports[name].pop('process_cpu_s', None)
+                    if cpu is not None:
+                        self.cpu_s[label] = cpu
+        finally:  # reaped even when this fails: else the domain lease is never released
+            if self._reaper.ident is None:
+                self._reaper.start()
         self._reports = reports
-        self._reaper.start()
         return reports
 
     def reaped(self, then: Callable[[], None]) -> None:
