@@ -99,7 +99,18 @@ class FrameIngestNode(Node):
         if self._worker is None:
             self._handle(msg)
         else:  # one worker: frames go out in the order they came
-            self._worker.submit(self._handle, msg).add_done_callback(self._raise_in_log)
+            self._worker.submit(self._handle_on_worker, msg)
+
+    def _handle_on_worker(self, msg: Any) -> None:
+        """``_handle`` on the decode worker. A bug there (not a bad frame, which ``_handle``
+        drops itself) would otherwise leave the frame unacknowledged and the run stalled for
+        its step timeout: it is logged as an error and the frame counted as dropped."""
+        try:
+            self._handle(msg)
+        except Exception as err:  # noqa: BLE001 (the worker's last resort, logged loudly)
+            self.get_logger().error(f'frame_ingest worker: {err!r}')
+            with self._lock:
+                self._drop(msg.header, f'internal error: {err!r}')
 
     def _handle(self, msg: Any) -> None:
         try:

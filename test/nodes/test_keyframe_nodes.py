@@ -184,3 +184,26 @@ def test_ingest_worker_applies_camera_info_in_arrival_order(context) -> None:
     assert ingest.report()['frames_dropped'] == 0
     assert [f.width for f in probe.got['/absscale/frames']] == [640, 800]
     ingest.destroy_node()
+
+
+def test_ingest_worker_bug_drops_the_frame_instead_of_stalling(context) -> None:
+    """An unexpected exception on the decode worker (a bug, not a bad frame) is logged and
+    the frame counted as dropped and acknowledged, so a lossless run does not wait for its
+    step timeout; the next frame goes out."""
+    ingest = FrameIngestNode(context=context, parameter_overrides=[
+        Parameter('image_topic', value='/camera/image_raw'), Parameter('compressed', value=False)])
+    assert ingest._worker is not None
+    decode = ingest._decode
+    ingest._decode = lambda msg: (_ for _ in ()).throw(RuntimeError('boom')) \
+        if msg.header.stamp.nanosec == 1 else decode(msg)
+    probe = Probe(context=context)
+    executor = _executor(context, ingest, probe)
+    assert spin_until(executor, lambda: probe.image.get_subscription_count() == 1
+                      and probe.info.get_subscription_count() == 1)
+    probe.info.publish(conversions.camera_model_to_info_msg(_model(640, 360), 1, 'cam'))
+    spin_until(executor, lambda: False, timeout_s=0.1)
+    for stamp in (1, 2):
+        probe.image.publish(_image(640, 360, stamp))
+    assert spin_until(executor, lambda: len(probe.got['/absscale/frames']) == 1, timeout_s=3.0)
+    assert spin_until(executor, lambda: ingest.report()['frames_dropped'] == 1, timeout_s=3.0)
+    ingest.destroy_node()
