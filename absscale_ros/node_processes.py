@@ -152,9 +152,12 @@ class NodeProcesses:
                 found = json.loads(path.read_text()) if path.exists() else {}
                 if self._own_main:
                     found = {label: found} if found else {}
+                # A process that wrote a report without this node's entry may still be running.
+                status = 'no entry in its report' if proc.poll() is None else \
+                    f'exit {proc.returncode}'
                 for name in group:
                     reports[name] = found.get(name) or {
-                        'error': f'exit {proc.returncode}: {self._log(label)[-500:]}'}
+                        'error': f'{status}: {self._log(label)[-500:]}'}
                     cpu = reports[name].pop('process_cpu_s', None)
                     if cpu is not None:
                         self.cpu_s[label] = cpu
