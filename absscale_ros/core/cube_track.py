@@ -55,9 +55,7 @@ class CubeTracker:
                     ) -> tuple[int, int, int, int] | None:
         """The box around every cube found, grown by the margins; None when it is most of
         the frame (the whole frame is searched then)."""
-        pts = np.concatenate([p for d in found for _, p in d.polygons] +
-                             [d.vertices_px for d in found])
-        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        lo, hi = detect_cube.extent(found)
         grow = self._cfg.track_margin_frac * float((hi - lo).max()) + self._cfg.track_margin_px
         h, w = shape[:2]
         x0, y0 = int(max(0.0, lo[0] - grow)), int(max(0.0, lo[1] - grow))

@@ -618,11 +618,16 @@ def detect_cubes(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
     return out
 
 
+def extent(dets: list[targets.TargetDetection]) -> tuple[Array, Array]:
+    """Return the (2,) lowest and highest px of the cubes' face polygons and vertices."""
+    pts = np.concatenate([p for d in dets for _, p in d.polygons] + [d.vertices_px for d in dets])
+    return pts.min(axis=0), pts.max(axis=0)
+
+
 def _inside(det: targets.TargetDetection, roi: tuple[int, int, int, int], clipped: Array,
             shape: tuple[int, ...], cfg: CubeConfig) -> bool:
     """Return True when a cube found in ``roi`` is clear of its edges (``detect_cubes``)."""
-    pts = np.concatenate([p for _, p in det.polygons] + [det.vertices_px])
-    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    lo, hi = extent([det])
     m = 0.5 * cfg.track_margin_px
     h, w = shape[:2]
     if (roi[0] > 0 and lo[0] < roi[0] + m) or (roi[1] > 0 and lo[1] < roi[1] + m) or \
@@ -679,6 +684,6 @@ def _cubes(image_bgr: npt.NDArray[np.uint8], faces: list[Face], cfg: CubeConfig,
             [faces[f] for f in members], [labels[4 * f:4 * f + 4] for f in members],
             Ks, image_bgr.shape, cfg.shape_tol_frac)
         if det is not None:
-            (small if tiny and small is not None else out).append(det)
+            (small if tiny else out).append(det)
     out.sort(key=lambda d: -d.score)
     return out
