@@ -10,7 +10,8 @@ side (sub-pixel, on intensity profiles), a robust line fit, corners as intersect
 refined lines. A candidate is kept when every side is backed by image gradient and the
 rectangle it implies has the configured aspect ratio. When no whole sheet is found, five-sided
 regions are tried as a sheet with one corner hidden (``sheet_partial``, ``min_seen``), also
-when an object on the corner cuts the sheet in two (``sheet_split``).
+when an object on the corner cuts the sheet in two (``sheet_split``) or the corner lies beyond
+the image border (``sheet_border``).
 """
 from dataclasses import dataclass
 from typing import Callable
@@ -19,8 +20,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from absscale_ros.core import (lines, quads, sheet_candidates, sheet_checks, sheet_partial,
-                               sheet_split, sheet_stub, sides, targets)
+from absscale_ros.core import (lines, quads, sheet_border, sheet_candidates, sheet_checks,
+                               sheet_partial, sheet_split, sheet_stub, sides, targets)
 
 Array = npt.NDArray[np.float64]
 FIRST_PASS_SUPPORT = 0.25  # a side less supported after the widest refinement pass: no sheet
@@ -107,6 +108,9 @@ class SheetConfig:
         times its size (square root of its area) away, for the hidden-corner path: a box on
         a sheet's corner, seen from low, cuts the sheet in two (``sheet_split``; 0 turns it
         off).
+    :param border_corner: a corner beyond the image border is extrapolated like a hidden one
+        (``sheet_border``: both sides at it seen over ``min_seen``, the cut along the border),
+        also under motion blur (``blur_band_frac``): a pan sweeps the sheet out of view.
     :param blur_band_frac: when no whole sheet is found, rough quadrilaterals are retried as
         a motion-blurred sheet (before the hidden-corner paths), each side searched this
         fraction of the shorter side either side (``_accept_blurred``; 0 turns it off).
@@ -145,6 +149,7 @@ class SheetConfig:
     min_seen: float = 0.4
     stub_px: float = 8.0
     split_gap: float = 2.0
+    border_corner: bool = True
     blur_band_frac: float = 0.4
 
     def __post_init__(self) -> None:
@@ -274,7 +279,7 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
     if not found:
         hidden = [r for r in cands.white_regions if not _whole_small(r[0], small, scale)]
         _accept_hidden(image_bgr, hidden, scale, band, cfg, K, found, dist,
-                       cands.split_regions)
+                       cands.split_regions, cands.border_regions, work)
     found.sort(key=lambda f: -f[0])
     return [_detection(f, sheet_checks.best_model(f[1], image_bgr.shape, cfg, K)) for f in found]
 
@@ -453,7 +458,9 @@ def _blur_alike(ramps: Array) -> bool:
 def _accept_hidden(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candidates.Region],
                    scale: float, band: float, cfg: SheetConfig, K: Array | None,
                    found: list[Found], dist: Array | None,
-                   split: list[sheet_candidates.Region] | None = None) -> None:
+                   split: list[sheet_candidates.Region] | None = None,
+                   border: list[sheet_candidates.Region] | None = None,
+                   work: npt.NDArray[np.uint8] | None = None) -> None:
     """
     The hidden-corner paths: five-sided regions (``sheet_partial``, when ``cfg.min_seen`` < 1;
     also of the ``split`` regions, a region joined with a part an occluder cut off),
@@ -493,7 +500,54 @@ def _accept_hidden(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candida
                               for p in pents],
                              lambda hyp, out: sheet_split.finish(hyp, out, band, image_bgr),
                              seen_out=True, strict_cover=True))
+    outside: list[list[sheet_partial.Partial]] = []
+    if cfg.min_seen < 1.0 and cfg.border_corner and border and work is not None:
+        outside = sheet_border.groups(border, work, cfg, scale, image_bgr.shape)
+        paths.append(_Hidden(outside, lambda hyp, out: sheet_partial.finish(hyp, out, band),
+                             border=True))
     _accept_partial(image_bgr, paths, band, cfg, K, found, dist=dist)
+    if not found and cfg.blur_band_frac > 0.0:
+        _accept_blurred_border(image_bgr, [h for g in outside for h in g], band, cfg, K, found,
+                               dist)
+
+
+def _accept_blurred_border(image_bgr: npt.NDArray[np.uint8], hyps: list[sheet_partial.Partial],
+                           band: float, cfg: SheetConfig, K: Array | None, found: list[Found],
+                           dist: Array | None) -> None:
+    """
+    Retry sheets with a corner beyond the image border (``sheet_border``) as smeared by motion
+    blur, as ``_accept_blurred`` does whole ones: a pan sweeps the sheet out of view, and the
+    sides, refined along their seen parts, are found at the mid level of their ramps.
+    """
+    hyps = [h for h in hyps if sheet_checks.aspect_ok(h.corners, image_bgr.shape, cfg, K,
+                                                      cfg.rough_aspect_tol, dist)]
+    for hyp in hyps[:BLUR_MAX_QUADS]:
+        side = float(np.linalg.norm(hyp.corners - np.roll(hyp.corners, -1, axis=0),
+                                    axis=1).min())
+        wide = max(band, cfg.blur_band_frac * side)
+        rough, n = sheet_partial.rough_sides(hyp)
+        ramps = sides.ramp_widths(image_bgr, rough, hyp.seen_ends, wide, None, None,
+                                  step_px=sides.blur_step(wide))
+        if ramps.max() < BLUR_MIN_RAMP_PX or not _blur_alike(ramps):
+            continue
+        out = sides.refine_many(image_bgr, [rough], [hyp.seen_ends], (wide, 0.5 * wide), [n],
+                                FIRST_PASS_SUPPORT, blurred=True)[0]
+        fin = None if out is None else sheet_partial.finish(hyp, out, wide)
+        if fin is None or not sheet_checks.big_enough(fin[5], image_bgr.shape, cfg):
+            continue
+        ramps = sides.ramp_widths(image_bgr, out[0], hyp.seen_ends, wide, fin[3], fin[4],
+                                  step_px=sides.blur_step(wide))
+        if ramps.max() < BLUR_MIN_RAMP_PX or not _blur_alike(ramps):
+            continue
+        tol = sheet_checks.aspect_tolerance(fin[0], cfg, K,
+                                            max(1.0, float(ramps.max()) / BLUR_RAMP_PX),
+                                            BLUR_ASPECT_CAP, dist)
+        if sheet_checks.passes(image_bgr, fin[:5], cfg, K, hyp.seen_ends, aspect_tol=tol,
+                               dist=dist):
+            support = float(fin[1].mean())
+            vs = np.array([support] * 3 + [0.5 * support * float(hyp.seen_frac.min())])
+            found.append((float(vs.mean()), fin[0], fin[5], vs))
+            return
 
 
 @dataclass(frozen=True, eq=False)
@@ -515,6 +569,7 @@ class _Hidden:
     screen: Callable[[sheet_partial.Partial, sides.Refined], bool] | None = None
     seen_out: bool = False
     strict_cover: bool = False
+    border: bool = False
 
 
 def _accept_partial(image_bgr: npt.NDArray[np.uint8], paths: list[_Hidden], band: float,
@@ -534,9 +589,11 @@ def _accept_partial(image_bgr: npt.NDArray[np.uint8], paths: list[_Hidden], band
     The extrapolated corner scores half the sheet's support times the smaller seen fraction of
     its two sides; the sheet's score is the mean over its corners.
     """
-    # A corner beyond the border has no occluder to show for the cut (tiles).
+    # A corner beyond the border has no occluder to show for the cut (tiles), except on the
+    # border path, whose cut runs along the border (``sheet_border``).
     groups = [[[h for h in group
-                if not sheet_candidates.touches_border(h.corners, image_bgr.shape, band)
+                if (path.border or
+                    not sheet_candidates.touches_border(h.corners, image_bgr.shape, band))
                 and (not path.rough_aspect or sheet_checks.aspect_ok(
                     h.corners, image_bgr.shape, cfg, K, cfg.rough_aspect_tol, dist))]
                for group in path.groups] for path in paths]
@@ -557,8 +614,9 @@ def _accept_partial(image_bgr: npt.NDArray[np.uint8], paths: list[_Hidden], band
                 seen = hyp.seen_ends if out is None or not path.seen_out else out[6]
                 if out is None or not sheet_checks.big_enough(out[5], image_bgr.shape, cfg) or \
                         not sheet_checks.passes(image_bgr, out[:5], cfg, K, seen, dist=dist) or \
-                        not sheet_checks.covered(image_bgr, out[0][3], out[3], cfg,
-                                                 out[4] if path.strict_cover else None):
+                        not (path.border or sheet_checks.covered(
+                            image_bgr, out[0][3], out[3], cfg,
+                            out[4] if path.strict_cover else None)):
                     continue
                 support = float(out[1].mean())
                 vs = np.array([support] * 3 + [0.5 * support * float(hyp.seen_frac.min())])

@@ -155,6 +155,7 @@ class Candidates:
         self._whites: list[float] = []
         self._edges_done = False
         self._split: list[tuple[npt.NDArray[np.int32], float]] = []
+        self._border: list[Region] = []
         self._add(white_masks(work_white), 0)
         self._white_count = len(self._regions)
 
@@ -200,12 +201,16 @@ class Candidates:
                 if solidity < PENT_MIN_SOLIDITY:
                     continue  # too small, too round or too long, or far from convex
                 # A region the border cuts has a side along it with no edge to refine: not for
-                # the hidden-corner paths (their hypotheses fail or are refused there).
+                # the hidden-corner paths (their hypotheses fail or are refused there), only
+                # for the corner beyond the border (``sheet_border``, whiteness masks).
                 x, y, w, h = cv2.boundingRect(c)
                 # (Colour-edge regions only serve the line mode's colour seeds: ``white_regions``.)
                 inner = min(x, y) > 1 and x + w < shape[1] - 1 and \
                     y + h < shape[0] - 1 and i != QUAD_ONLY_MASK and \
                     (i < FREE_MASK or cfg.line_candidates)
+                if not (min(x, y) > 1 and x + w < shape[1] - 1 and y + h < shape[0] - 1) and \
+                        i < QUAD_ONLY_MASK:
+                    self._border.append((c, grow))
                 quad = lines.rough_quad(c) if solidity >= cfg.min_solidity else None
                 quad = None if quad is None else offset(quad, grow)
                 # A sheet cut by the image border has no trustworthy corners, and another
@@ -247,6 +252,12 @@ class Candidates:
                        for px, py in other.reshape(-1, 2))
             if gap <= self.cfg.split_gap * size:
                 self._split.append((np.vstack([contour, other]), white))
+
+    @property
+    def border_regions(self) -> list[Region]:
+        """Regions of the whiteness masks the image border cuts (``sheet_border``: not yet
+        tested ``plausible``, which costs more than their hypotheses)."""
+        return self._border
 
     @property
     def split_regions(self) -> list[Region]:

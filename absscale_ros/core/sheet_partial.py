@@ -3,13 +3,14 @@ Sheet hypotheses with one corner hidden by an object on the sheet.
 
 A sheet with one corner covered is a five-sided region: two whole sides, the two sides next
 to the hidden corner seen only in part, and the occluder's cut. (A corner beyond the image
-border is not extrapolated: the border shows no occluder, and floor tiles cut by it would
-pass every other test.) Every
-side of the region's simplified convex hull is tried as the cut: the two sides next to it,
-extended, meet at the hidden corner. A hypothesis is kept when that corner lies beyond the
-cut and each extended side is seen over at least ``min_seen`` of its length; the detector then
-refines the four sides only along their seen parts and applies its usual tests. The hidden
-corner is an extrapolation, so the detection carries a lower score for it (``vertex_scores``).
+border is not extrapolated here: the border shows no occluder, and floor tiles cut by it would
+pass every other test; ``sheet_border`` takes only cuts along the border, where three seen
+corners fix the aspect.) Every side of the region's simplified convex hull is tried as the
+cut: the two sides next to it, extended, meet at the hidden corner. A hypothesis is kept when
+that corner lies beyond the cut and each extended side is seen over at least ``min_seen`` of
+its length; the detector then refines the four sides only along their seen parts and applies
+its usual tests. The hidden corner is an extrapolation, so the detection carries a lower score
+for it (``vertex_scores``).
 """
 from dataclasses import dataclass
 
