@@ -116,15 +116,14 @@ def strip_faces(image_bgr: npt.NDArray[np.uint8], corners: list[Array], colours:
     offs = np.arange(0.5, max_width + 1e-9, STEP_PX)
     cand = []  # (face, side, c0, c1, outward normal, offsets within half the side)
     shared = _shared(corners, 0.1, 3.0)
-    for f, cs in enumerate(corners):
-        centre = cs.mean(axis=0)
-        for i in range(4):
-            c0, c1 = cs[i], cs[(i + 1) % 4]
-            length = float(np.hypot(*(c1 - c0)))
-            if length < 8.0 or shared[f, i]:
-                continue
-            k = int(np.searchsorted(offs, min(max_width, 0.5 * length) + 1e-9))
-            cand.append((f, i, c0, c1, lines.line_through(c0, c1, centre)[:2], k))
+    pts = np.stack(corners)  # (F, 4, 2)
+    length = np.hypot(*(np.roll(pts, -1, axis=1) - pts).transpose(2, 0, 1))  # (F, 4)
+    reach = np.searchsorted(offs, np.minimum(max_width, 0.5 * length) + 1e-9)
+    centres = pts.mean(axis=1)
+    for f, i in zip(*np.nonzero((length >= 8.0) & ~shared)):
+        c0, c1 = pts[f, i], pts[f, (i + 1) % 4]
+        cand.append((int(f), int(i), c0, c1,
+                     lines.line_through(c0, c1, centres[f])[:2], int(reach[f, i])))
     if not cand:
         return []
     c0s, c1s, ns = (np.array([c[j] for c in cand]) for j in (2, 3, 4))
@@ -133,28 +132,34 @@ def strip_faces(image_bgr: npt.NDArray[np.uint8], corners: list[Array], colours:
     flat = cv2.remap(image_bgr, xy[..., 0].astype(np.float32), xy[..., 1].astype(np.float32),
                      cv2.INTER_LINEAR)
     samples = flat.reshape(len(cand), PROFILES, len(offs), 3)
-    masks = {c: m.reshape(len(cand), PROFILES, len(offs)) for c, m in masks_of(flat).items()}
+    masks = masks_of(flat)
+    names = list(masks)
     ks = np.array([k for *_, k in cand])
-    widths = {c: _widths(m, offs, ks) for c, m in masks.items()}  # (C, P) each
+    # Widths, the profiles that find a strip and their share: every colour and side at once.
+    widths = _widths(np.stack([masks[c].reshape(len(cand), PROFILES, len(offs))
+                               for c in names]), offs, ks)  # (C, S, P)
+    oks = np.isfinite(widths) & (widths >= min_width)
+    shares = oks.mean(axis=2)
     found: dict[int, list[tuple[int, str, Array, float, bool]]] = {}
-    for s_, (f, i, c0, c1, n, k) in enumerate(cand):
-        for other in masks:
-            w = widths[other][s_]
-            ok = np.isfinite(w) & (w >= min_width)
-            if other == colours[f] or ok.mean() < min_frac:
-                continue
-            w = _half_step(samples[s_, :, :k].astype(np.float64), w, offs[:k])
-            t, wk = ts[ok], w[ok]  # a least-squares line: width linear along the side
-            slope = ((t - t.mean()) * (wk - wk.mean())).sum() / ((t - t.mean()) ** 2).sum()
-            w0, w1 = wk.mean() - slope * t.mean(), wk.mean() + slope * (1.0 - t.mean())
-            if max(w0, w1) < min_width or min(w0, w1) < -min_width:
-                continue
-            # A strip may taper to nothing (a top seen at a grazing angle: half of it above
-            # each side face); so may a sliver of a box behind, so a tapered one is mute.
-            tapered = min(w0, w1) < 0.5 * min_width
-            w0, w1 = max(w0, 0.0), max(w1, 0.0)
-            strip = np.array([c0, c0 + w0 * n, c1 + w1 * n, c1])
-            found.setdefault(f, []).append((i, other, strip, float(ok.mean()), tapered))
+    for s_, o in zip(*np.nonzero(shares.T >= min_frac)):  # (side, colour) pairs, in order
+        f, i, c0, c1, n, k = cand[s_]
+        other = names[o]
+        if other == colours[f]:
+            continue
+        ok = oks[o, s_]
+        w = _half_step(samples[s_, :, :k].astype(np.float64), widths[o, s_], offs[:k])
+        t, wk = ts[ok], w[ok]  # a least-squares line: width linear along the side
+        tm, wm = t.mean(), wk.mean()
+        slope = ((t - tm) * (wk - wm)).sum() / ((t - tm) ** 2).sum()
+        w0, w1 = wm - slope * tm, wm + slope * (1.0 - tm)
+        if max(w0, w1) < min_width or min(w0, w1) < -min_width:
+            continue
+        # A strip may taper to nothing (a top seen at a grazing angle: half of it above
+        # each side face); so may a sliver of a box behind, so a tapered one is mute.
+        tapered = min(w0, w1) < 0.5 * min_width
+        w0, w1 = max(w0, 0.0), max(w1, 0.0)
+        strip = np.array([c0, c0 + w0 * n, c1 + w1 * n, c1])
+        found.setdefault(f, []).append((i, other, strip, float(shares[o, s_]), tapered))
     strips = [(f, j, x[2], x[1]) for f, xs in found.items() for j, x in enumerate(xs)]
     for (f, j, _, _), on in zip(strips, _runs_on(image_bgr, [x[2] for x in strips],
                                                  [x[3] for x in strips], masks_of)):
