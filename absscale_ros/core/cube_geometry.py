@@ -25,6 +25,7 @@ _SQUARE = np.array([[-0.5, 0.5, 0.0], [0.5, 0.5, 0.0], [0.5, -0.5, 0.0], [-0.5, 
 # Side faces of the cube posed on a face (corners 0-3, the four behind it 4-7), each ordered
 # like the posing face as seen from outside: shared edges run the other way.
 _SIDES = ((1, 0, 4, 5), (2, 1, 5, 6), (3, 2, 6, 7), (0, 3, 7, 4))
+_FACES = np.array([(0, 1, 2, 3), *_SIDES])  # the posing face and its sides, (5, 4)
 MIN_IOU = 0.4  # a detected face and a face the posed cube shows agree above this overlap
 MIN_INSIDE = 0.8  # ... or when this share of the detected face lies within the shown face
 # A strip agrees with a pose when the far corners of its face lie within this many strip widths
@@ -70,9 +71,10 @@ def _signed_areas(polys: Array) -> Array:
 
 def shown_sides(proj: Array) -> list[npt.NDArray[np.float32]]:
     """Return the convex outlines of the side faces that the posed cube ``proj`` shows."""
-    areas = _signed_areas(np.stack([proj[:4]] + [proj[list(s)] for s in _SIDES]))
-    return [cv2.convexHull(proj[list(s)].astype(np.float32))
-            for s, a in zip(_SIDES, areas[1:]) if a * areas[0] > 0.0]
+    polys = proj[_FACES]  # the posing face, then the side faces
+    areas = _signed_areas(polys)
+    return [cv2.convexHull(poly.astype(np.float32))
+            for poly, a in zip(polys[1:], areas[1:]) if a * areas[0] > 0.0]
 
 
 def agrees(shown: list[npt.NDArray[np.float32]], found: npt.NDArray[np.float32]) -> bool:
