@@ -99,17 +99,25 @@ def side_colours(samples: Array, ns: npt.NDArray[np.int64] | None = None
     for n in ([ns[0]] if ns.min() == ns.max() else np.unique(ns)):  # usually one count
         idx = np.flatnonzero(ns == n)
         n = int(n)
-        mid = samples[idx, int(0.2 * n):max(int(0.8 * n), int(0.2 * n) + 1)]
-        both = np.median(mid[:, :, ::mid.shape[2] - 1, :], axis=1)  # the first, the last sample
+        # the first and the last sample of the middle profiles (sliced before any copy)
+        mid = samples[:, int(0.2 * n):max(int(0.8 * n), int(0.2 * n) + 1), ::samples.shape[2] - 1]
+        both = np.median(mid if len(idx) == len(ns) else mid[idx], axis=1)
         inside[idx], outside[idx] = both[:, 0], both[:, -1]
     return inside, outside
+
+
+def _project(samples: Array, unit: Array) -> Array:
+    """Return (S, N, K) the samples (S, N, K, 3) projected on each side's (S, 3) colour axis."""
+    # Channel by channel: the same sums as np.einsum('snkc,sc->snk'), at a third of its cost.
+    return (samples[..., 0] * unit[:, 0, None, None] + samples[..., 1] * unit[:, 1, None, None]
+            + samples[..., 2] * unit[:, 2, None, None])
 
 
 def _edges(samples: Array, step: Array, centres: Array, offs: Array, normals: Array
            ) -> tuple[Array, Array]:
     """Return (S, n, 2) steepest-descent edge points and (S, n) strengths (0 = none)."""
     unit = step / np.maximum(np.sqrt((step * step).sum(axis=1, keepdims=True)), 1e-9)
-    proj = np.einsum('snkc,sc->snk', samples, unit)
+    proj = _project(samples, unit)
     proj = 0.25 * proj[..., :-2] + 0.5 * proj[..., 1:-1] + 0.25 * proj[..., 2:]  # light blur
     drop = proj[..., :-2] - proj[..., 2:]  # positive where it gets darker outwards
     k = np.argmax(drop, axis=2)
@@ -149,7 +157,7 @@ def _crossings(samples: Array, step: Array, inside: Array, outside: Array, offs:
     first and the last pass through the level: noise crosses it more than once.
     """
     unit = step / np.maximum(np.sqrt((step * step).sum(axis=1, keepdims=True)), 1e-9)
-    proj = np.einsum('snkc,sc->snk', samples, unit)
+    proj = _project(samples, unit)
     proj = 0.25 * proj[..., :-2] + 0.5 * proj[..., 1:-1] + 0.25 * proj[..., 2:]
     lo = np.einsum('sc,sc->s', outside, unit)[:, None]
     hi = np.einsum('sc,sc->s', inside, unit)[:, None]
@@ -201,7 +209,7 @@ def fit_lines(pts: Array, weights: Array, outward: Array, scale_px: Array,
     w = weights.copy()
     x, y = np.ascontiguousarray(pts[..., 0]), np.ascontiguousarray(pts[..., 1])
     nx = ny = mx = my = np.zeros(len(pts))
-    for _ in range(iters):
+    for it in range(iters):
         sw = np.maximum(w.sum(axis=1), 1e-12)
         mx, my = (w * x).sum(axis=1) / sw, (w * y).sum(axis=1) / sw
         dx, dy = x - mx[:, None], y - my[:, None]
@@ -212,6 +220,8 @@ def fit_lines(pts: Array, weights: Array, outward: Array, scale_px: Array,
         nx, ny = -np.sin(phi), np.cos(phi)
         flip = np.where(nx * outward[:, 0] + ny * outward[:, 1] < 0.0, -1.0, 1.0)
         nx, ny = nx * flip, ny * flip
+        if it == iters - 1:
+            break  # (no weights after the last fit)
         r = (dx * nx[:, None] + dy * ny[:, None]) / (4.685 * scale_px[:, None])
         w = weights * np.where(np.abs(r) < 1.0, (1.0 - r ** 2) ** 2, 0.0)
     return np.stack([nx, ny, -(nx * mx + ny * my)], axis=1)
@@ -267,8 +277,9 @@ def refine(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,
         fitted = fit_lines(pts, np.where(keep, strength, 0.0), lines_[:, :2],
                            np.full(len(lines_), max(0.5, band / 4.0)))
         lines_[usable] = fitted[usable]
-        near = np.abs(np.einsum('snk,sk->sn', pts, lines_[:, :2]) + lines_[:, None, 2])
-        support = np.where(usable, (keep & (near < tol[:, None])).sum(axis=1) / ns, 0.0)
+        if i == len(bands_px) - 1:  # (the last pass's support is the one returned)
+            near = np.abs(np.einsum('snk,sk->sn', pts, lines_[:, :2]) + lines_[:, None, 2])
+            support = np.where(usable, (keep & (near < tol[:, None])).sum(axis=1) / ns, 0.0)
     return lines_, support, np.linalg.norm(step, axis=1), inside, outside
 
 
