@@ -83,6 +83,18 @@ def _median_strength(strength: Array, ns: npt.NDArray[np.int64]) -> Array:
     return np.where(k > 0, 0.5 * (srt[rows, lo] + srt[rows, hi]), 0.0)
 
 
+def _median_profiles(samples: Array) -> Array:
+    """
+    Return ``np.median(samples, axis=1)`` of (S, N, ...) samples with no NaN (image samples):
+    the same values from a sort, which costs a fifth of numpy's partition along that axis.
+    """
+    srt = np.sort(samples, axis=1)
+    n = srt.shape[1]
+    if n % 2:
+        return srt[:, n // 2]
+    return (srt[:, n // 2 - 1] + srt[:, n // 2]) / srt.dtype.type(2)  # np.mean of the two
+
+
 def side_colours(samples: Array, ns: npt.NDArray[np.int64] | None = None
                  ) -> tuple[Array, Array]:
     """
@@ -101,7 +113,7 @@ def side_colours(samples: Array, ns: npt.NDArray[np.int64] | None = None
         n = int(n)
         # the first and the last sample of the middle profiles (sliced before any copy)
         mid = samples[:, int(0.2 * n):max(int(0.8 * n), int(0.2 * n) + 1), ::samples.shape[2] - 1]
-        both = np.median(mid if len(idx) == len(ns) else mid[idx], axis=1)
+        both = _median_profiles(mid if len(idx) == len(ns) else mid[idx])
         inside[idx], outside[idx] = both[:, 0], both[:, -1]
     return inside, outside
 
@@ -190,7 +202,7 @@ def ramp_widths(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array, ba
                                  step_px)
     if inside is None or outside is None:
         inside, outside = side_colours(samples)
-    prof = np.median(samples, axis=1, keepdims=True)  # (S, 1, K, 3)
+    prof = _median_profiles(samples)[:, None]  # (S, 1, K, 3)
     step = inside - outside
     a, ok_a = _crossings(prof, step, inside, outside, offs, 0.75)
     b, ok_b = _crossings(prof, step, inside, outside, offs, 0.25)
@@ -301,7 +313,7 @@ def ridge_ratio(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array, ba
     top = max(reaches)
     _, offs, samples = _profiles(image_bgr, lines_, ends, top * band_px,
                                  np.full(len(lines_), n))
-    prof = np.median(samples, axis=1)  # (S, K, 3)
+    prof = _median_profiles(samples)  # (S, K, 3)
     out = np.zeros(len(lines_))
     for r in reaches:
         band = r * band_px
