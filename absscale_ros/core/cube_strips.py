@@ -38,7 +38,7 @@ def _shared(face_corners: list[Array], tol_frac: float, min_tol: float
     d = np.hypot(pts[:, None, 0] - pts[None, :, 0], pts[:, None, 1] - pts[None, :, 1])
     near = d.reshape(4 * nf, nf, 4).min(axis=2)  # corner -> nearest corner of each face
     ends = np.arange(4 * nf).reshape(nf, 4)
-    nxt = np.roll(ends, -1, axis=1)
+    nxt = ends[:, [1, 2, 3, 0]]
     length = np.hypot(*(pts[nxt.ravel()] - pts[ends.ravel()]).T).reshape(nf, 4)
     tol = np.maximum(min_tol, tol_frac * length)[..., None]
     both = (near[ends] < tol) & (near[nxt] < tol)  # (F, 4, F)
@@ -117,7 +117,7 @@ def strip_faces(image_bgr: npt.NDArray[np.uint8], corners: list[Array], colours:
     cand = []  # (face, side, c0, c1, outward normal, offsets within half the side)
     shared = _shared(corners, 0.1, 3.0)
     pts = np.stack(corners)  # (F, 4, 2)
-    length = np.hypot(*(np.roll(pts, -1, axis=1) - pts).transpose(2, 0, 1))  # (F, 4)
+    length = np.hypot(*(pts[:, [1, 2, 3, 0]] - pts).transpose(2, 0, 1))  # (F, 4)
     reach = np.searchsorted(offs, np.minimum(max_width, 0.5 * length) + 1e-9)
     centres = pts.mean(axis=1)
     for f, i in zip(*np.nonzero((length >= 8.0) & ~shared)):

@@ -30,6 +30,7 @@ BLUR_MIN_RAMP_FRAC = 0.25
 BLUR_FREE_BAND_PX = 12.0
 BORDER_PX = 2.0  # a rough face corner this close to the image border lies on it
 CUT_MAX_RAMP_PX = 3.0  # a sharp side ramps over 1-2 px (25-75 %): sharper poses a cut face
+NEXT = [1, 2, 3, 0]  # the next corner of each of a quadrilateral's four
 
 
 @dataclass(frozen=True)
@@ -302,7 +303,8 @@ def _refine_each(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array,
     if not rough:
         return []
     side_lines = np.concatenate([ls for _, ls, _ in rough])
-    ends = np.concatenate([np.stack([q, np.roll(q, -1, axis=0)], axis=1) for _, _, q in rough])
+    quads = np.stack([q for _, _, q in rough])  # (F, 4, 2)
+    ends = np.stack([quads, quads[:, NEXT]], axis=2).reshape(-1, 2, 2)  # per side its corners
     n = int(np.clip(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1).max() / 3.0, 12, 48))
     if blur_band_px > 0.0:
         rough, side_lines, ends, colours = _smeared(image_bgr, rough, side_lines, ends, n,
@@ -335,13 +337,13 @@ def _refine_each(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array,
         if not cv2.isContourConvex(corners.astype(np.float32)):
             continue
         # Acute corners are cut by the rough outline, so allow a quarter of the longest side.
-        side_px = np.hypot(*(hough_corners - np.roll(hough_corners, -1, 0)).T).max()
+        side_px = np.hypot(*(hough_corners - hough_corners[NEXT]).T).max()
         if np.abs(corners - hough_corners).max() > max(4.0, 0.25 * side_px):
             continue  # the refinement ran off to another edge
         # A cut face poses the cube from an extrapolation: only on sharp sides (a motion
         # streak across them shifts its seen corners by pixels); smeared, it is mute.
         smeared = cut is not None and sides.ramp_widths(
-            image_bgr, ls[real], np.stack([corners, np.roll(corners, -1, axis=0)], 1)[real],
+            image_bgr, ls[real], np.stack([corners, corners[NEXT]], 1)[real],
             6.0, inside[4 * f:4 * f + 4][real], outside[4 * f:4 * f + 4][real]).max() \
             > CUT_MAX_RAMP_PX
         faces[-1] = Face(colour, corners, ls, sup, runs_on=bool(smeared),
