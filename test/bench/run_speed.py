@@ -7,7 +7,12 @@ noisy machine loads them alike (the ratio is the figure; absolute seconds drift 
 
 Per run: wall time of the command, the replay's wall time and peak RSS from report.json, CPU
 time of the run and its node processes, the factor and a hash of scaled_cloud.ply, and for
---live the frames each node dropped and the keyframe-to-/scaled_cloud latency.
+--live the frames each node dropped and the keyframe-to-/scaled_cloud latency. ``others_cpu_s``
+is the CPU the rest of the machine used meanwhile (all cores' busy time from /proc/stat less
+the run's own) and ``idle_core_s`` the cores' idle time: a run that shared the machine with
+another busy job says so (session 14: two runs held to one core by another priority job took
+51.6 and 57.3 s, the runs beside them 36.9 and 42.2 s), and on an idle machine the idle time
+is what the run's layout left unused.
 """
 import argparse
 import hashlib
@@ -22,9 +27,18 @@ import tempfile
 import time
 
 
+def _machine_cpu_s() -> tuple[float, float]:
+    """(busy, idle) CPU seconds of all cores since boot (/proc/stat; iowait counts as idle)."""
+    with open('/proc/stat') as f:
+        ticks = [int(x) for x in f.readline().split()[1:]]
+    idle = ticks[3] + ticks[4]
+    return (sum(ticks) - idle) / os.sysconf('SC_CLK_TCK'), idle / os.sysconf('SC_CLK_TCK')
+
+
 def run_once(tree: Path, bag: str, config: str, extra: list[str]) -> dict:
     with tempfile.TemporaryDirectory(prefix='run_speed_') as out:
         before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        machine0 = _machine_cpu_s()
         t0 = time.monotonic()
         done = subprocess.run(
             [sys.executable, '-m', 'absscale_ros.cli', 'run', bag, '--config', config,
@@ -35,16 +49,20 @@ def run_once(tree: Path, bag: str, config: str, extra: list[str]) -> dict:
             # node process at the end (and lost their reports).
             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
         wall = time.monotonic() - t0
+        machine1 = _machine_cpu_s()
         after = resource.getrusage(resource.RUSAGE_CHILDREN)
         path = Path(out) / 'report.json'
         report = json.loads(path.read_text()) if path.exists() else {}
         cloud = Path(out) / 'scaled_cloud.ply'  # "identical cloud": the same bytes
         cloud_sha1 = hashlib.sha1(cloud.read_bytes()).hexdigest()[:12] if cloud.exists() else None
     nodes = report.get('nodes', {})
+    cpu = after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime
     return {
         'exit': done.returncode, 'wall_s': round(wall, 1),
         'replay_s': report.get('wall_time_s'),
-        'cpu_s': round(after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime, 1),
+        'cpu_s': round(cpu, 1),
+        'others_cpu_s': round(machine1[0] - machine0[0] - cpu, 1),
+        'idle_core_s': round(machine1[1] - machine0[1], 1),
         'process_cpu_s': report.get('process_cpu_s'),  # per process: runner, node groups
         'peak_rss_mb': report.get('peak_rss_mb'),
         'frames_decoded': nodes.get('frame_ingest', {}).get('frames_decoded'),
