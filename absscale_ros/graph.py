@@ -44,9 +44,14 @@ STALLED_S = 10.0  # nothing moved this long: the graph is not catching up, stop 
 # apart), against ~0.7 ms for both within one. With ingest and the selector in the runner and
 # the detector apart, 60 s bag under load: CPU 67.1 / 64.7 s (runner 19.6, detector 22.5,
 # sfm + scale 23.3) -> 60.8 / 61.3 s (runner 3.9, frames 32.8, sfm + scale 22.1), wall x0.77 /
-# x1.00 interleaved; the runner only replays the bag (JPEG) and watches.
+# x1.00 interleaved; the runner only replays the bag (JPEG) and watches. The scale node stays
+# in the runner too: beside the sfm it took ~1 s of that process's CPU (and its GIL), and the
+# sfm's process is a split run's critical path at the end (see SPLIT_NICE); the runner has CPU
+# to spare. 60 s bag, 6 interleaved pairs at load 5-11: sfm process 23.1-24.4 -> 21.8-22.9 s
+# CPU in 5 of them (22.6 -> 24.6 in one), replay x0.95-1.07 (median x0.97; two pairs in which
+# another job held the new runs to one core left out), the same factor and cloud in every run.
 SPLIT_GROUPS = (('frame_ingest', 'vertex_detector', 'keyframe_selector'),
-                ('sfm', 'scale', 'dense'))
+                ('sfm', 'dense'))
 # ... and the niceness added to a group's process. The sfm is a split run's critical path: its
 # final batch comes last, after every keyframe it queued. At the detector's priority it worked
 # off its queue (a 3.9 s batch among it on the 60 s bag) alone after the replay; with the
@@ -87,7 +92,7 @@ class RunOptions:
     drain_s: float = 0.3
     processes: bool = False  # each pipeline node in its own process, over real DDS
     # Offline, not --processes: the frame nodes (ingest, detector, keyframe selector), and the
-    # SfM with the scale node, in processes of their own (SPLIT_GROUPS), so a run uses both
+    # SfM, in processes of their own (SPLIT_GROUPS; scale stays here), so a run uses both
     # cores (opt-in: under load it once lost a keyframe's input at start, and the indoor sample
     # then claimed no scale; one process is the tested default).
     split: bool = False

@@ -54,7 +54,7 @@ def _deterministic(report: dict) -> dict:
 
 def test_processes_give_the_same_result_as_one_process(tmp_path: Path) -> None:
     """--processes: every node its own process, over real DDS on loopback; --split (the frame
-    nodes, and the sfm with the scale node, in processes of their own) too."""
+    nodes, and the sfm, in processes of their own; scale in the runner) too."""
     bag = tmp_path / 'cam.mcap'
     write_camera_bag(bag, frames=10, size=(640, 360))
     reports = []

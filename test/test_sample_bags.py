@@ -45,9 +45,9 @@ def test_outdoor_sample_scale_is_true_and_repeatable(one_process: tuple[dict, di
 
 def test_split_run_gives_the_factor_and_cloud_of_one_process(
         one_process: tuple[dict, dict]) -> None:
-    """--split (frame nodes, and sfm with scale, in processes of their own, one OpenCV thread
-    each) must not change the numbers: the random frames of test_run_end_to_end have no
-    object, so only this bag checks the factor and the cloud across layouts."""
+    """--split (frame nodes, and the sfm, in processes of their own, one OpenCV thread each;
+    scale in the runner) must not change the numbers: the random frames of test_run_end_to_end
+    have no object, so only this bag checks the factor and the cloud across layouts."""
     first, latest = one_process
     threads = cv2.getNumThreads()
     split, latest_split = _run(split=True)

@@ -31,9 +31,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='each node in its own process, talking over DDS on loopback')
     parser.add_argument('--split', action='store_true',
                         help='offline, experimental: the frame nodes (ingest, detector, '
-                             'keyframe selector) and the sfm with the scale node each in a '
-                             'process of their own, so a run uses two cores (default: every '
-                             'node in this process)')
+                             'keyframe selector) and the sfm each in a process of their own, '
+                             'so a run uses two cores (default: every node in this process)')
     parser.add_argument('--quiet', action='store_true', help='no progress bar')
 
 
