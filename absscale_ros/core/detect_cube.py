@@ -264,15 +264,18 @@ def _hough_sides(faces: list[tuple[Array, Array]], cfg: CubeConfig) -> list[Arra
     side_lines, votes = [], []  # votes: (face, side, outline points, theta guess, rho guess)
     for f, (quad, contour_px) in enumerate(faces):
         centre = quad.mean(axis=0)
-        for i in range(4):
-            p0, p1 = quad[i], quad[(i + 1) % 4]
-            line = lines.line_through(p0, p1, centre)
-            d = np.abs(contour_px @ line[:2] + line[2])
-            t = (contour_px - p0) @ (p1 - p0) / max(float((p1 - p0) @ (p1 - p0)), 1e-9)
-            near = contour_px[(d < 6.0) & (t > 0.2) & (t < 0.8)]  # clear of cut corners
-            if len(near) >= 5:
-                votes.append((f, i, near, float(np.arctan2(line[1], line[0])), -line[2]))
-            side_lines.append(line)
+        ls = np.array([lines.line_through(quad[i], quad[(i + 1) % 4], centre) for i in range(4)])
+        side_lines += list(ls)
+        # (4, N): each outline point's distance from each side, and where along it it lies
+        x, y = contour_px[:, 0], contour_px[:, 1]
+        d = np.abs(ls[:, :1] * x + ls[:, 1:2] * y + ls[:, 2:])
+        seg = quad[NEXT] - quad
+        t = (seg[:, :1] * (x - quad[:, :1]) + seg[:, 1:] * (y - quad[:, 1:])) / np.maximum(
+            (seg * seg).sum(axis=1), 1e-9)[:, None]
+        close = (d < 6.0) & (t > 0.2) & (t < 0.8)  # clear of cut corners
+        for i in np.flatnonzero(close.sum(axis=1) >= 5):
+            votes.append((f, i, contour_px[close[i]], float(np.arctan2(ls[i, 1], ls[i, 0])),
+                          -ls[i, 2]))
     peaks = lines.hough_lines([v[2] for v in votes], np.array([v[3] for v in votes]),
                               np.array([v[4] for v in votes]), cfg.hough_theta_deg)
     for (f, i, *_), (theta, rho) in zip(votes, peaks):
