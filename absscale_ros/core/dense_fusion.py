@@ -13,19 +13,22 @@ materially, rescaled when only the scale changed, and otherwise just moved with 
 A keyframe also gets a plane-sweep depth map over its neighbours (``dense_sweep``, at a lower
 resolution), which covers what its pairs cannot: where the camera moved along its view. Its
 points are kept where no pair of the keyframe has depth, and it votes for the pairs' points.
+Optionally (``dense_facade``) far planes fitted to a wide-baseline sweep fill what is left.
 """
 from dataclasses import dataclass, field
 from typing import Any
 
+import cv2
 import numpy as np
 import numpy.typing as npt
 
-from absscale_ros.core import dense_cloud, dense_stereo, dense_sweep
+from absscale_ros.core import dense_cloud, dense_facade, dense_stereo, dense_sweep
 from absscale_ros.core.types import CameraModel
 
 FloatArray = npt.NDArray[np.float64]
 _NEW = -1.0  # a depth map was (re)computed, as opposed to a rescale factor
 SWEEP = 2  # key of the plane-sweep depth map among a keyframe's depth maps (pairs: +-1, 0)
+FACADE = 3  # key of the far planes' depth map (``dense_facade``)
 
 
 @dataclass(frozen=True)
@@ -36,6 +39,8 @@ class FusionConfig:
     consistency_rel: float = 0.005  # depths agreeing within this fraction are the same surface
     min_consistent: int = 1  # other keyframes' depth maps that must agree
     sweep_consistent: int = 1  # ... with a point only the plane sweep found (noisier)
+    facade_consistent: int = 1  # ... with a point only a far plane gave (``dense_facade``)
+    facade_rel: float = 0.002  # ... agreeing within this fraction of its depth
     neighbours: int = 3  # keyframes on each side a depth pixel is checked against
     max_new_maps: int = 2  # stereo pairs computed per update at most (the rest wait)
     both_sides: bool = True  # a partner on each side of a keyframe (two depth maps), else one
@@ -59,6 +64,10 @@ class _Keyframe:
     swept_with: dict[int, FloatArray] = field(default_factory=dict)  # neighbour -> T_nb_kf
     placed: FloatArray | None = None  # the pose its cloud is in the fused voxels with
     reach: float = 0.0  # farthest point of its cloud from the camera, m
+    fine: Any = None  # (uint8 grey, K) at full size, undistorted (far planes' refinement)
+    facade_with: dict[int, FloatArray] = field(default_factory=dict)  # far view -> T_nb_kf
+    planes: list[tuple[FloatArray, int]] = field(default_factory=list)  # far planes p (p.X = 1
+    # in its camera) and the pixels that refined each
 
 
 def _angle_deg(a: FloatArray, b: FloatArray) -> float:
@@ -74,9 +83,11 @@ class DenseFusion:
     """Keyframes in, a metric dense cloud out; call ``update`` whenever poses arrive."""
 
     def __init__(self, stereo: dense_stereo.StereoConfig, fusion: FusionConfig,
-                 sweep: dense_sweep.SweepConfig | None = None) -> None:
+                 sweep: dense_sweep.SweepConfig | None = None,
+                 facade: dense_facade.FacadeConfig | None = None) -> None:
         self.stereo, self.cfg = stereo, fusion
         self.sweep = sweep or dense_sweep.SweepConfig()
+        self.facade = facade or dense_facade.FacadeConfig()
         self._frames: dict[int, _Keyframe] = {}
         self.depth_computed = 0  # stereo pairs run so far (recomputations included)
         self.sweeps_computed = 0  # plane sweeps run so far
@@ -87,7 +98,8 @@ class DenseFusion:
     def add_keyframe(self, stamp_ns: int, image_bgr: np.ndarray, camera: CameraModel) -> None:
         """Keep a keyframe (at the working scale) until its pose is known."""
         image, cam = dense_stereo.working_image(image_bgr, camera, self.stereo)
-        self._frames[stamp_ns] = _Keyframe(image, cam)
+        fine = dense_facade.fine_view(image_bgr, camera) if self.facade.enabled else None
+        self._frames[stamp_ns] = _Keyframe(image, cam, fine=fine)
 
     def update(self, poses: dict[int, FloatArray]) -> bool:
         """
@@ -105,10 +117,16 @@ class DenseFusion:
         # Newest first, at most max_new_maps stereo pairs: a backlog (all keyframes when the
         # scale is first claimed) is spread over the following updates.
         self._budget, self.backlog, self._poses = self.cfg.max_new_maps, False, poses
-        self._sweep_budget = 1
+        self._sweep_budget, self._facade_budget = 1, 1
         outcome = [1.0] * len(stamps)
         for i in reversed(range(len(stamps))):
             outcome[i] = self._refresh_depth(stamps, i)
+        for i in reversed(range(len(stamps))):
+            if self._refresh_facade(stamps, i) == _NEW:
+                # its far points vote for the earlier neighbours' far points, and theirs for it
+                for j in range(max(0, i - self.cfg.neighbours), i + 1):
+                    if j == i or FACADE in self._frames[stamps[j]].depths:
+                        outcome[j] = _NEW
         for i, s in enumerate(stamps):
             kf = self._frames[s]
             if not kf.depths:
@@ -172,7 +190,7 @@ class DenseFusion:
         return _NEW
 
     def _rescale(self, kf: _Keyframe, used: dict[int, FloatArray],
-                 depth: dense_stereo.DepthMap) -> float | None:
+                 depth: dense_stereo.DepthMap | None) -> float | None:
         """
         If no view ``depth`` was computed with (stamp -> T_view_kf then) moved materially,
         rescale it by the change of scale and return the factor; None if it must be recomputed.
@@ -190,7 +208,8 @@ class DenseFusion:
         ratio = float(np.mean(ratios))
         if abs(ratio - 1.0) < 1e-9:
             return 1.0
-        depth.depth *= np.float32(ratio)  # a new scale only: depth goes with the baselines
+        if depth is not None:  # a new scale only: depth goes with the baselines
+            depth.depth *= np.float32(ratio)
         return ratio
 
     def _refresh_sweep(self, stamps: list[int], i: int) -> float | None:
@@ -246,6 +265,65 @@ class DenseFusion:
                                    self.sweep.max_step_m)] = 0.0
         return dense_stereo.DepthMap(depth, colour, K, np.eye(3), -1, np.eye(4))
 
+    def _refresh_facade(self, stamps: list[int], i: int) -> float | None:
+        """Keyframe ``i``'s far-plane depth map, once it is swept (``dense_facade``)."""
+        cfg, kf = self.facade, self._frames[stamps[i]]
+        if not cfg.enabled or kf.view is None or SWEEP not in kf.depths or i % cfg.every \
+                or len(stamps) - 1 - i < cfg.lag:  # its pairs done, later far views there
+            return None
+        if kf.facade_with:
+            ratio = self._rescale(kf, kf.facade_with, kf.depths.get(FACADE))
+            if ratio is not None:
+                kf.facade_with = {s: dense_stereo.relative_pose(kf.pose, self._frames[s].pose)
+                                  for s in kf.facade_with}
+                kf.planes = [(p / ratio, n) for p, n in kf.planes]
+                return ratio
+        poses = [self._frames[s].pose for s in stamps]
+        views = dense_facade.far_views(poses, i, cfg, self.sweep.max_angle_deg)
+        if not views:
+            return None
+        if self._facade_budget <= 0:
+            self.backlog = True
+            return None
+        self._facade_budget -= 1
+        others, fine = [], []
+        for j, T in views:
+            other = self._frames[stamps[j]]
+            if other.view is None:
+                other.view = dense_sweep.pinhole_view(other.image, other.camera, self.sweep)
+            others.append((other.view[1], T))
+            fine.append((other.fine[0].astype(np.float32), T))
+        colour, grey, K = kf.view
+        covered = self._covered(kf)
+        fine_ref = (kf.fine[0].astype(np.float32), fine, kf.fine[1])
+        planes = dense_facade.facade_planes(grey, others, K, covered, cfg, self.sweep, fine_ref)
+        kf.planes = [(p, n) for p, _, n in planes if n > 0]
+        kf.facade_with = {stamps[j]: T for j, T in views}
+        known = [(dense_facade.world_plane(p, f.pose), n)
+                 for s in stamps[max(0, i - cfg.span):i + cfg.span + 1]
+                 if (f := self._frames[s]) is not kf for p, n in f.planes]
+        use = [(dense_facade.pooled(p, kf.pose, known, cfg), region) for p, region, _ in planes]
+        depth = dense_facade.facade_fill(grey, others, K, covered, use, cfg, fine_ref)
+        if depth.any():
+            kf.depths[FACADE] = dense_stereo.DepthMap(depth, colour, K, np.eye(3), -1, np.eye(4))
+        elif kf.depths.pop(FACADE, None) is None:
+            return None
+        return _NEW
+
+    def _covered(self, kf: _Keyframe) -> npt.NDArray[np.bool_]:
+        """Pixels of the keyframe's sweep view that its other depth maps cover."""
+        _, grey, K = kf.view
+        h, w = grey.shape
+        covered = np.zeros((h, w), np.uint8)
+        for side, m in kf.depths.items():
+            if side != FACADE:
+                p = dense_stereo.transform(m.points_camera()[0], K)
+                u = np.rint(p[:, 0] / p[:, 2]).astype(np.intp)
+                v = np.rint(p[:, 1] / p[:, 2]).astype(np.intp)
+                ok = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+                covered[v[ok], u[ok]] = 1
+        return cv2.dilate(covered, np.ones((3, 3), np.uint8)) > 0
+
     def _nearby_points(self, stamps: list[int], i: int, stride: int = 8) -> FloatArray:
         """A thinned sample of the depth maps of keyframe ``i`` and its neighbours, in its
         camera frame (where a dominant plane is looked for)."""
@@ -253,7 +331,7 @@ class DenseFusion:
         for s in stamps[max(0, i - self.sweep.span):i + self.sweep.span + 1]:
             other = self._frames[s]
             T = dense_stereo.relative_pose(other.pose, kf.pose)  # other camera -> kf camera
-            for m in other.depths.values():
+            for m in (m for side, m in other.depths.items() if side != FACADE):
                 out.append(dense_stereo.transform(m.points_camera(stride)[0], T[:3, :3],
                                                   T[:3, 3]))
         return np.concatenate(out) if out else np.zeros((0, 3))
@@ -262,7 +340,7 @@ class DenseFusion:
         """Depths to sweep: what the depth maps of nearby keyframes hold, widened."""
         span = self.sweep.span
         depths = [d.depth[d.depth > 0][::7] for s in stamps[max(0, i - span):i + span + 1]
-                  for d in self._frames[s].depths.values()]
+                  for side, d in self._frames[s].depths.items() if side != FACADE]
         values = np.concatenate(depths) if depths else np.zeros(0)
         if values.size < 100:
             return guess / 4.0, guess * 4.0
@@ -272,8 +350,8 @@ class DenseFusion:
     def _depth_guess(self, stamps: list[int], i: int) -> float:
         """Median depth of the nearest keyframe that has a depth map (for the pair choice)."""
         for j in sorted(range(len(stamps)), key=lambda j: abs(j - i)):
-            for d in self._frames[stamps[j]].depths.values():
-                if np.any(d.depth > 0):
+            for side, d in self._frames[stamps[j]].depths.items():
+                if side != FACADE and np.any(d.depth > 0):
                     return float(np.median(d.depth[d.depth > 0]))
         return 1.0 / self.stereo.target_baseline_ratio * self._typical_step(stamps, i)
 
@@ -288,39 +366,40 @@ class DenseFusion:
         kf = self._frames[stamps[i]]
         k = self.cfg.neighbours
         near = sorted(range(max(0, i - k), min(len(stamps), i + k + 1)), key=lambda j: abs(j - i))
-        maps = [(m, self._frames[stamps[j]].pose, side == SWEEP) for j in near
+        maps = [(m, self._frames[stamps[j]].pose, side >= SWEEP) for j in near
                 for side, m in self._frames[stamps[j]].depths.items()]
-        pairs = [m for side, m in kf.depths.items() if side != SWEEP]
+        pairs = [m for side, m in kf.depths.items() if side < SWEEP]
         keep_pts, keep_col = [], []
         for side, own in sorted(kf.depths.items()):  # the sweep (2) after the pairs
             pts, colours = own.points_camera()
             world = dense_stereo.transform(pts, kf.pose[:3, :3], kf.pose[:3, 3])
-            if side == SWEEP:  # only where no pair of this keyframe has depth
+            if side >= SWEEP:  # only where no pair (nor the sweep) of this keyframe has depth
                 free = np.ones(len(pts), bool)
                 for m in pairs:
                     free[_agreeing_index(world, kf.pose, m, np.inf)[0]] = False
                 pts, colours, world = pts[free], colours[free], world[free]
+            rel = self.cfg.facade_rel if side == FACADE else self.cfg.consistency_rel
             votes = np.zeros(len(pts), np.int32)
             total, weight = world.copy(), np.ones(len(pts))
             for m, pose, swept in maps:  # the keyframe's other side is an independent pair too
                 # The other map's estimate of the same surface point, along its own ray:
                 # averaging independent pairs shrinks SGBM's sub-pixel noise. A coarser
                 # sweep only votes for a pair's points (those still short of votes).
-                mean = self.cfg.average and (side == SWEEP or not swept)
+                mean = self.cfg.average and (side >= SWEEP or not swept)
                 if m is own:
                     continue
                 if mean:
-                    idx, ratio = _agreeing_index(world, pose, m, self.cfg.consistency_rel)
+                    idx, ratio = _agreeing_index(world, pose, m, rel)
                     total[idx] += pose[:3, 3] + (world[idx] - pose[:3, 3]) * ratio[:, None]
                     weight[idx] += 1.0
                 else:
                     short = np.flatnonzero(votes < self.cfg.min_consistent)
                     if not len(short):
                         continue
-                    idx = short[_agreeing_index(world[short], pose, m,
-                                                self.cfg.consistency_rel)[0]]
+                    idx = short[_agreeing_index(world[short], pose, m, rel)[0]]
                 votes[idx] += 1
-            needed = self.cfg.sweep_consistent if side == SWEEP else self.cfg.min_consistent
+            needed = {SWEEP: self.cfg.sweep_consistent, FACADE: self.cfg.facade_consistent}.get(
+                side, self.cfg.min_consistent)
             keep = votes >= needed
             if self.cfg.average:
                 world = total / weight[:, None]
@@ -362,7 +441,7 @@ class DenseFusion:
     def pairs(self) -> list[tuple[int, int]]:
         """(keyframe, partner) stamps of every depth map held."""
         return [(s, d.pair_stamp) for s, kf in sorted(self._frames.items())
-                for side, d in kf.depths.items() if side != SWEEP]
+                for side, d in kf.depths.items() if side < SWEEP]
 
     @property
     def keyframes(self) -> int:

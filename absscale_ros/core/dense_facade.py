@@ -1,0 +1,320 @@
+"""
+Far planes (façades) filled where photo-consistency does not contradict them.
+
+Beyond the reach of the keyframe pairs and the near sweep (a building 35-60 m away is seen by
+many keyframes, but with the near baselines its parallax is a pixel or two), a keyframe is
+swept again over neighbours far apart (baselines a fraction of the far depth). Its per-pixel
+far depths are too noisy to keep (plain plaster, repeating windows and bricks), but many of
+them lie on a few planes: planes fitted to them by RANSAC average the noise away. Each plane
+then gives a depth to every pixel of its region (near its inliers in the image) that no other
+depth map of the keyframe covers, where the far views warped through the plane agree with
+the keyframe: correlation where the window has texture, the mean grey level where it is plain
+(a plain wall is what a surveyor would draw there). Fusion keeps those points only where
+other keyframes' maps agree (multi-view support).
+"""
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from absscale_ros.core import dense_stereo, dense_sweep
+from absscale_ros.core.types import CameraModel
+
+FloatArray = npt.NDArray[np.float64]
+Image32 = npt.NDArray[np.float32]
+Mask = npt.NDArray[np.bool_]
+Views = tuple[Image32, list[tuple[Image32, FloatArray]], FloatArray]  # ref, (view, T), K
+
+
+@dataclass(frozen=True)
+class FacadeConfig:
+    """Far sweep, plane fit and plane fill; pixel sizes at the sweep's scale."""
+
+    enabled: bool = False  # off: no far planes
+    near_m: float = 20.0  # far sweep from this depth ...
+    far_m: float = 150.0  # ... to this one, m
+    baseline_ratio: float = 0.25  # preferred far baseline / geometric mean of near_m and far_m
+    min_baseline_m: float = 3.0  # far views closer than this: not used
+    span: int = 12  # keyframes on each side considered as far views
+    views: int = 3  # far views
+    every: int = 1  # sweep every this many keyframes (the others borrow nothing)
+    lag: int = 3  # a keyframe gets its far planes once this many later keyframes have poses
+    window_px: int = 7  # correlation window of the far sweep, px
+    min_ncc: float = 0.5  # far depths matched with a smaller correlation: not fitted
+    min_texture: float = 2.0  # far depths in plainer windows: not fitted
+    planes: int = 4  # planes fitted at most
+    tolerance: float = 0.01  # RANSAC inlier distance, fraction of depth
+    trials: int = 200  # RANSAC samples per plane
+    min_inliers: int = 200  # fewer far depths on a plane: not a plane
+    max_slant_deg: float = 60.0  # planes seen further from their normal: not façades
+    refine: bool = True  # planes aligned photometrically (Gauss-Newton) before the fill
+    refine_stride: int = 3  # every this many of the plane's textured pixels drive the refinement
+    fill_plain: bool = True  # plain pixels filled too (where the far views' grey levels agree)
+    pool_deg: float = 3.0  # planes of other keyframes within this angle ...
+    pool_m: float = 0.5  # ... and offset are the same façade, averaged with this one's
+    hull_px: int = 2  # a plane's region: its inliers' pixels closed and dilated by this, px
+    fill_ncc: float = 0.8  # a textured pixel's correlation through the plane at least this ...
+    fill_texture: float = 4.0  # ... where its window's grey-level deviation is at least this
+    fill_grey: float = 6.0  # a plain pixel's mean grey level within this of the far view's
+    fill_views: int = 2  # far views that must agree (none may contradict)
+
+
+def fine_view(image_bgr: np.ndarray, camera: CameraModel) -> tuple[np.ndarray, FloatArray]:
+    """The full-size keyframe as undistorted uint8 grey, and its K (plane refinement)."""
+    grey = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY)
+    cam = camera.resized(grey.shape[1], grey.shape[0])
+    if cam.has_distortion:
+        grey = cv2.undistort(grey, cam.K, cam.dist)
+    return grey, np.asarray(cam.K, np.float64)
+
+
+def far_views(poses: list[FloatArray], i: int, cfg: FacadeConfig,
+              max_angle_deg: float) -> list[tuple[int, FloatArray]]:
+    """Indices and T_view_kf of keyframe ``i``'s far views (baseline nearest the target)."""
+    target = cfg.baseline_ratio * np.sqrt(cfg.near_m * cfg.far_m)
+    scored = []
+    for j in range(max(0, i - cfg.span), min(len(poses), i + cfg.span + 1)):
+        T = dense_stereo.relative_pose(poses[i], poses[j])
+        b = float(np.linalg.norm(T[:3, 3]))
+        angle = np.degrees(np.arccos(np.clip((np.trace(T[:3, :3]) - 1) / 2, -1, 1)))
+        if j != i and b >= cfg.min_baseline_m and angle <= max_angle_deg:
+            scored.append((abs(np.log(b / target)), j, T))
+    return [(j, T) for _, j, T in sorted(scored, key=lambda x: x[0])[:cfg.views]]
+
+
+def fit_planes(points: FloatArray, cfg: FacadeConfig,
+               seed: int = 0) -> list[tuple[FloatArray, float, npt.NDArray[np.bool_]]]:
+    """Planes (n, d > 0 with n . X = d, inlier mask) on camera-frame points, by RANSAC."""
+    rng = np.random.default_rng(seed)
+    left = np.ones(len(points), bool)
+    depth = np.maximum(points[:, 2], 1e-6)
+    out = []
+    for _ in range(cfg.planes):
+        idx = np.flatnonzero(left)
+        if len(idx) < cfg.min_inliers:
+            break
+        p = points[idx]
+        tol = cfg.tolerance * depth[idx]
+        best, best_n = None, 0
+        for a, b, c in rng.integers(0, len(p), (cfg.trials, 3)):
+            n = np.cross(p[b] - p[a], p[c] - p[a])
+            norm = np.linalg.norm(n)
+            if norm < 1e-9:
+                continue
+            n /= norm
+            inside = np.abs((p - p[a]) @ n) <= tol
+            if inside.sum() > best_n:
+                best, best_n = inside, int(inside.sum())
+        if best is None or best_n < cfg.min_inliers:
+            break
+        for _ in range(2):  # least-squares refit, inliers again
+            q = p[best]
+            centre = q.mean(0)
+            n = np.linalg.svd(q - centre, full_matrices=False)[2][2]
+            best = np.abs((p - centre) @ n) <= tol
+        d = float(n @ centre)
+        n, d = (n, d) if d > 0 else (-n, -d)
+        mask = np.zeros(len(points), bool)
+        mask[idx[best]] = True
+        left &= ~mask
+        if d > 1e-6:
+            out.append((n, d, mask))
+    return out
+
+
+def refine_plane(grey: Image32, others: list[tuple[Image32, FloatArray]], K: FloatArray,
+                 plane: FloatArray, pixels: npt.NDArray[np.intp], iterations: int = 8,
+                 huber: float = 1.0) -> FloatArray:
+    """
+    The plane ``p = n / d`` (``p . X = 1``) that best aligns ``others`` warped into ``grey``
+    over ``pixels`` ((N, 2) u, v), by Gauss-Newton on normalised grey levels: thousands of
+    pixels pin a plane to a small fraction of a pixel of parallax where one pixel cannot.
+    """
+    u, v = pixels[:, 0].astype(np.float64), pixels[:, 1].astype(np.float64)
+    y = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], 1)
+    ref = grey[pixels[:, 1], pixels[:, 0]].astype(np.float64)
+    ref = (ref - ref.mean()) / max(ref.std(), 1e-6)
+    prepared = []
+    for img, T in others:
+        gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3) / 8.0
+        gy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3) / 8.0
+        prepared.append((img, gx, gy, y @ (K @ T[:3, :3]).T, K @ T[:3, 3]))
+    p = np.asarray(plane, np.float64).copy()
+    for _ in range(iterations):
+        JtJ, Jtr = np.zeros((3, 3)), np.zeros(3)
+        for img, gx, gy, a, kt in prepared:
+            xh = a + np.outer(y @ p, kt)
+            w = xh[:, 2]
+            ok = w > 1e-6
+            uo, vo = xh[:, 0] / np.where(ok, w, 1.0), xh[:, 1] / np.where(ok, w, 1.0)
+            h, wd = img.shape
+            ok &= (uo >= 1) & (uo < wd - 2) & (vo >= 1) & (vo < h - 2)
+            if ok.sum() < 50:
+                continue
+            mx, my = uo[ok].astype(np.float32), vo[ok].astype(np.float32)
+            val, ix, iy = (cv2.remap(m, mx[:, None], my[:, None], cv2.INTER_LINEAR)[:, 0]
+                           .astype(np.float64) for m in (img, gx, gy))
+            mean, sd = val.mean(), max(val.std(), 1e-6)
+            # d(value)/d(xh), then along kt: d xh / d p = kt y^T
+            wk = w[ok]
+            dx = np.stack([ix / wk, iy / wk, -(ix * uo[ok] + iy * vo[ok]) / wk], 1)
+            J = (dx @ kt)[:, None] * y[ok]
+            J = (J - J.mean(0)) / sd
+            r = (val - mean) / sd - ref[ok]
+            weight = np.minimum(1.0, huber / np.maximum(np.abs(r), 1e-9))
+            JtJ += (J * weight[:, None]).T @ J
+            Jtr += (J * weight[:, None]).T @ r
+        if not JtJ.any():
+            break
+        step = np.linalg.solve(JtJ + 1e-6 * np.trace(JtJ) * np.eye(3), -Jtr)
+        p += step
+        if np.linalg.norm(step) < 1e-6 * np.linalg.norm(p):
+            break
+    return p
+
+
+def _stats(img: Image32, win: tuple[int, int]) -> tuple[Image32, Image32]:
+    mu = cv2.boxFilter(img, -1, win)
+    sd = np.sqrt(np.maximum(cv2.boxFilter(img * img, -1, win) - mu * mu, 0.0))
+    return mu, sd
+
+
+def facade_planes(grey: Image32, others: list[tuple[Image32, FloatArray]], K: FloatArray,
+                  covered: npt.NDArray[np.bool_], cfg: FacadeConfig,
+                  sweep_cfg: dense_sweep.SweepConfig,
+                  fine: tuple[Image32, list[tuple[Image32, FloatArray]], FloatArray] | None = None
+                  ) -> list[tuple[FloatArray, npt.NDArray[np.bool_], int]]:
+    """
+    Far planes of the reference ``grey`` where ``covered`` (other depth) is False.
+
+    :param others: far views (grey image, T_view_ref).
+    :param fine: the same images at a finer scale (and its K) for the plane refinement.
+    :returns: (p = n / d with p . X = 1 in the reference camera, region mask, pixels
+        that refined it) for each plane.
+    """
+    h, w = grey.shape
+    far_cfg = dense_sweep.SweepConfig(scale=sweep_cfg.scale, window_px=cfg.window_px,
+                                      plane_step_px=sweep_cfg.plane_step_px,
+                                      max_planes=sweep_cfg.max_planes, min_ncc=cfg.min_ncc,
+                                      truncate=sweep_cfg.truncate, min_texture=cfg.min_texture,
+                                      plane=False)
+    far = dense_sweep.sweep(grey, others, K, cfg.near_m, cfg.far_m, far_cfg)
+    far[covered] = 0.0  # what nearer maps hold is not a far surface
+    v, u = np.nonzero(far > 0)
+    z = far[v, u].astype(np.float64)
+    pts = np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], axis=1)
+    out: list[tuple[FloatArray, npt.NDArray[np.bool_], int]] = []
+    if len(pts) < cfg.min_inliers:
+        return out
+    win = (cfg.window_px, cfg.window_px)
+    size = 2 * cfg.hull_px + 1
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+    g, o, Kf = fine if fine is not None else (grey, others, K)
+    textured = _stats(g, win)[1] >= cfg.fill_texture
+    for n, d, mask in fit_planes(pts, cfg):
+        ray = np.median(pts[mask], axis=0)
+        if n @ ray / np.linalg.norm(ray) < np.cos(np.radians(cfg.max_slant_deg)):
+            continue  # seen too obliquely (the ground far ahead): not a façade
+        inl = np.zeros((h, w), np.uint8)
+        inl[v[mask], u[mask]] = 1
+        region = cv2.dilate(cv2.morphologyEx(inl, cv2.MORPH_CLOSE, kernel), kernel) > 0
+        p, used = n / d, 0
+        if cfg.refine:
+            inl = cv2.dilate(inl, np.ones((3, 3), np.uint8))
+            if fine is not None:
+                inl = cv2.resize(inl, g.shape[::-1], interpolation=cv2.INTER_NEAREST)
+            fit = np.argwhere((inl > 0) & textured)[:, ::-1][::cfg.refine_stride]
+            if len(fit) >= cfg.min_inliers:
+                q = refine_plane(g, o, Kf, p, fit)
+                if q @ ray > 0:
+                    p, used = q, len(fit)
+        out.append((p, region, used))
+    return out
+
+
+def facade_fill(grey: Image32, others: list[tuple[Image32, FloatArray]], K: FloatArray,
+                covered: Mask, planes: list[tuple[FloatArray, Mask]], cfg: FacadeConfig,
+                fine: Views | None = None
+                ) -> Image32:
+    """
+    Depth from ``planes`` ((p, region mask) as ``facade_planes`` gives) where ``covered`` is
+    False and the far views warped through the plane agree with ``grey``.
+
+    :returns: (h, w) z, m; 0 where no plane is kept.
+    """
+    h, w = grey.shape
+    out = np.zeros((h, w), np.float32)
+    uu, vv = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    for p, region in planes:
+        along = p[0] * (uu - K[0, 2]) / K[0, 0] + p[1] * (vv - K[1, 2]) / K[1, 1] + p[2]
+        zp = np.where(along > 1e-9, 1.0 / np.maximum(along, 1e-9), 0.0)
+        cand = region & ~covered & (out == 0) & (zp >= cfg.near_m) & (zp <= cfg.far_m)
+        if not cand.any():
+            continue
+        keep = cand & _consistent(grey, others, K, p, cfg) if fine is None else \
+            cand & _coarse(_consistent(*fine, p, cfg), (w, h))
+        out[keep] = zp[keep]
+    return out
+
+
+def _coarse(mask: npt.NDArray[np.bool_], size: tuple[int, int]) -> npt.NDArray[np.bool_]:
+    """A fine mask at a coarser size: where most of a coarse pixel's fine pixels are set."""
+    return cv2.resize(mask.astype(np.float32), size, interpolation=cv2.INTER_AREA) >= 0.5
+
+
+def _consistent(grey: Image32, others: list[tuple[Image32, FloatArray]], K: FloatArray,
+                p: FloatArray, cfg: FacadeConfig) -> npt.NDArray[np.bool_]:
+    """Pixels where the views warped through plane ``p`` agree with ``grey``."""
+    h, w = grey.shape
+    win = (cfg.window_px, cfg.window_px)
+    mu_r, sd_r = _stats(grey, win)
+    K_inv = np.linalg.inv(K)
+    agree = np.zeros((h, w), np.int32)
+    against = np.zeros((h, w), bool)
+    for img, T in others:
+        H = K @ (T[:3, :3] + np.outer(T[:3, 3], p)) @ K_inv
+        warped = cv2.warpPerspective(img, H, (w, h), flags=cv2.INTER_LINEAR
+                                     | cv2.WARP_INVERSE_MAP, borderValue=-1.0)
+        inside = cv2.erode((warped >= 0).astype(np.uint8), np.ones(win, np.uint8)) > 0
+        mu_w, sd_w = _stats(warped, win)
+        ncc = (cv2.boxFilter(grey * warped, -1, win) - mu_r * mu_w) / \
+            np.maximum(sd_r * sd_w, 1e-3)
+        textured = sd_r >= cfg.fill_texture
+        ok_t = textured & (ncc >= cfg.fill_ncc)
+        ok_p = cfg.fill_plain & ~textured & (sd_w < cfg.fill_texture) & \
+            (np.abs(mu_r - mu_w) <= cfg.fill_grey)
+        ok = inside & (ok_t | ok_p)
+        agree += ok
+        against |= inside & ~ok
+    return (agree >= cfg.fill_views) & ~against
+
+
+def pooled(p: FloatArray, T_world_cam: FloatArray,
+           known: list[tuple[FloatArray, int]], cfg: FacadeConfig) -> FloatArray:
+    """
+    Plane ``p`` (camera frame) averaged with the same façade's planes found from other
+    keyframes (``known``: world-frame (n, d) as 4-vectors, refinement pixels): each is pinned
+    to a few centimetres, their mean to less.
+    """
+    n, d = p / np.linalg.norm(p), 1.0 / np.linalg.norm(p)
+    R, c = T_world_cam[:3, :3], T_world_cam[:3, 3]
+    nw = R @ n
+    dw = d + nw @ c
+    total, weight = np.zeros(4), 0.0
+    for q, count in known:
+        if q[:3] @ nw >= np.cos(np.radians(cfg.pool_deg)) and abs(q[3] - dw) <= cfg.pool_m:
+            total += count * q
+            weight += count
+    if weight == 0:
+        return p
+    nw, dw = total[:3] / np.linalg.norm(total[:3]), total[3] / np.linalg.norm(total[:3])
+    n, d = R.T @ nw, dw - nw @ c
+    return n / d
+
+
+def world_plane(p: FloatArray, T_world_cam: FloatArray) -> FloatArray:
+    """Camera-frame ``p`` as a world-frame (n, d) 4-vector."""
+    n, d = p / np.linalg.norm(p), 1.0 / np.linalg.norm(p)
+    nw = T_world_cam[:3, :3] @ n
+    return np.concatenate([nw, [d + nw @ T_world_cam[:3, 3]]])
