@@ -117,6 +117,10 @@ class SfmMap:
     unlinked_vertices: set[tuple[int, int]] = field(default_factory=set)
     _landmarks: dict[int, Landmark] = field(default_factory=dict, repr=False)
     _packed: PackedLandmarks | None = field(default=None, repr=False)
+    # Ids of the labelled landmarks ever added (a label is set only then; removed ones are
+    # skipped when counted): ``vertex_count`` runs several times a keyframe per segment, and
+    # a pass over every landmark cost ~0.7 ms at 12k landmarks.
+    _labelled: set[int] = field(default_factory=set, repr=False)
 
     @property
     def landmarks(self) -> dict[int, Landmark]:
@@ -149,7 +153,9 @@ class SfmMap:
         """Number of target vertex (labelled) landmarks (does not unpack a frozen map)."""
         if self._packed is not None:
             return int(self._packed.labelled.sum())
-        return sum(lm.label is not None for lm in self._landmarks.values())
+        lms = self._landmarks
+        self._labelled = {i for i in self._labelled if i in lms}
+        return len(self._labelled)
 
     def add_landmark(self, point_world: FloatArray, colour_rgb: tuple[int, int, int],
                      label: tuple[int, int] | None = None) -> int:
@@ -157,6 +163,8 @@ class SfmMap:
         self.next_landmark_id += 1
         self.landmarks[lm_id] = Landmark(np.array(point_world, np.float64), colour_rgb,
                                          label=label)
+        if label is not None:
+            self._labelled.add(lm_id)
         return lm_id
 
     def observe(self, lm_id: int, kf_id: int, point_px: FloatArray, kp_index: int = -1) -> None:

@@ -75,6 +75,8 @@ def test_unfrozen_map_is_the_same_and_adjusts_the_same(engines) -> None:
                                                                    kf_ref.landmark_of)
     a, b = compacted.finish(), plain.finish()
     assert a == b
+    for m in (seg.map for e in engines for seg in e.segments):  # culled by the batches too
+        assert m.vertex_count() == sum(lm.label is not None for lm in m.landmarks.values()) > 0
     for seg, seg_ref in zip(compacted.segments, plain.segments):
         _landmarks_equal(seg.map.landmarks, seg_ref.map.landmarks)
         assert np.array_equal(seg.map.poses()[1], seg_ref.map.poses()[1])
@@ -85,3 +87,15 @@ def test_pack_round_trip_of_an_empty_map() -> None:
     m.freeze()
     assert m.frozen and m.landmark_count() == 0 == m.vertex_count()
     assert m.landmarks == {} and not m.frozen
+
+
+def test_vertex_count_follows_removals_and_packing() -> None:
+    m = sfm_map.SfmMap()
+    ids = [m.add_landmark(np.zeros(3), (0, 0, 0), (1, k) if k % 2 else None) for k in range(6)]
+    assert m.vertex_count() == 3
+    m.remove_landmark(ids[1])
+    assert m.vertex_count() == 2
+    m.freeze()
+    assert m.vertex_count() == 2 and m.frozen
+    m.remove_landmark(ids[3])  # unpacks
+    assert m.vertex_count() == 1
