@@ -8,6 +8,7 @@ tied together directly: on fast stretches with few shared points per pair, short
 the map's scale drift.
 """
 from dataclasses import dataclass
+from itertools import chain
 
 import numpy as np
 import numpy.typing as npt
@@ -46,8 +47,8 @@ def _landmark_descriptors(m: sfm_map.SfmMap, recent: list[sfm_map.MapKeyframe],
         return np.zeros(0, np.int64), np.zeros((0, 128), np.float32)
     lms = np.concatenate([kf.landmark_of[r] for kf, r in zip(recent, rows)]).astype(np.int64)
     ids, first = np.unique(lms, return_index=True)  # first: in the newest keyframe seeing it
-    keep = ~np.isin(ids, skip) & np.fromiter((i in m.landmarks for i in ids.tolist()), bool,
-                                             len(ids))
+    keep = ~np.isin(ids, skip) & np.fromiter(map(m.landmarks.__contains__, ids.tolist()),
+                                             bool, len(ids))
     first = np.sort(first[keep])  # newest keyframe first, as the loop over ``recent`` went
     descs = np.concatenate([kf.features.descriptors[r] for kf, r in zip(recent, rows)])
     return lms[first], descs[first]
@@ -71,17 +72,19 @@ def search(m: sfm_map.SfmMap, K: FloatArray, kf: sfm_map.MapKeyframe, size: tupl
     lm_ids, descs = _landmark_descriptors(m, recent, kf.landmark_of[kf.landmark_of >= 0])
     if not len(lm_ids):
         return 0
-    uv = twoview.project(K, kf.T_world_cam, np.array([m.landmarks[int(i)].point_world
-                                                      for i in lm_ids]))
+    landmarks = m.landmarks
+    uv = twoview.project(K, kf.T_world_cam, np.array([landmarks[i].point_world
+                                                      for i in lm_ids.tolist()]))
     inside = np.all(np.isfinite(uv), axis=1) & (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & \
         (uv[:, 0] < size[0]) & (uv[:, 1] < size[1])
     cand = np.flatnonzero(inside)
     near = cKDTree(kf.features.points_px[free]).query_ball_point(uv[cand], cfg.radius_px)
-    counts = np.array([len(n) for n in near], np.int64)
-    if not counts.sum():
+    counts = np.fromiter(map(len, near), np.int64, len(near))
+    total = int(counts.sum())
+    if not total:
         return 0
     li = np.repeat(cand, counts)  # (landmark row, free keypoint) candidate pairs
-    kj = free[np.concatenate([np.asarray(n, np.int64) for n in near])]
+    kj = free[np.fromiter(chain.from_iterable(near), np.int64, total)]
     dist = np.linalg.norm(descs[li].astype(np.float32) -
                           kf.features.descriptors[kj].astype(np.float32), axis=1)
     order = np.lexsort((dist, li))

@@ -504,4 +504,4 @@ def _seen_by(m: sfm_map.SfmMap, kf_ids: list[int]) -> list[int]:
         seen.update(kf.landmark_of[kf.landmark_of >= 0].tolist())
         if kf.vertices is not None:
             seen.update(kf.vertices.landmark_of[kf.vertices.landmark_of >= 0].tolist())
-    return sorted(i for i in seen if i in m.landmarks)
+    return sorted(filter(m.landmarks.__contains__, seen))
