@@ -153,8 +153,7 @@ def refine_plane(grey: Image32, others: list[tuple[Image32, FloatArray]], K: Flo
             if ok.sum() < 50:
                 continue
             mx, my = uo[ok].astype(np.float32), vo[ok].astype(np.float32)
-            val, ix, iy = (cv2.remap(m, mx[:, None], my[:, None], cv2.INTER_LINEAR)[:, 0]
-                           .astype(np.float64) for m in (img, gx, gy))
+            val, ix, iy = (_sample(m, mx, my) for m in (img, gx, gy))
             mean, sd = val.mean(), max(val.std(), 1e-6)
             # d(value)/d(xh), then along kt: d xh / d p = kt y^T
             wk = w[ok]
@@ -172,6 +171,14 @@ def refine_plane(grey: Image32, others: list[tuple[Image32, FloatArray]], K: Flo
         if np.linalg.norm(step) < 1e-6 * np.linalg.norm(p):
             break
     return p
+
+
+def _sample(img: Image32, x: Image32, y: Image32, width: int = 4096) -> FloatArray:
+    """Bilinear samples of ``img`` at (x, y), in rows of ``width`` (remap's maps must stay
+    under 32767 pixels a side)."""
+    pad = -len(x) % width
+    mx, my = (np.concatenate([c, np.zeros(pad, np.float32)]).reshape(-1, width) for c in (x, y))
+    return cv2.remap(img, mx, my, cv2.INTER_LINEAR).ravel()[:len(x)].astype(np.float64)
 
 
 def _stats(img: Image32, win: tuple[int, int]) -> tuple[Image32, Image32]:

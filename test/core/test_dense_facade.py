@@ -69,3 +69,16 @@ def test_far_planes_fill_the_facade_within_centimetres() -> None:
     m.depth = raw
     raw_dist = mesh.distance(m.points_camera()[0] @ poses[1][:3, :3].T + poses[1][:3, 3])
     assert np.median(raw_dist) > np.median(dist)
+
+
+def test_refinement_samples_more_pixels_than_a_remap_side_holds() -> None:
+    # A large façade drives the refinement with more than 32767 pixels (lag 8 on outdoor 65):
+    # the samples are bilinear whatever their number.
+    rng = np.random.default_rng(0)
+    img = rng.random((720, 1280)).astype(np.float32)
+    x, y = (rng.random(50000) * [[1270], [710]]).astype(np.float32)
+    xi, yi = x.astype(int), y.astype(int)
+    ax, ay = x - xi, y - yi
+    expected = img[yi, xi] * (1 - ax) * (1 - ay) + img[yi, xi + 1] * ax * (1 - ay) + \
+        img[yi + 1, xi] * (1 - ax) * ay + img[yi + 1, xi + 1] * ax * ay
+    assert np.abs(dense_facade._sample(img, x, y) - expected).max() < 1e-5
