@@ -6,16 +6,16 @@ import cv2
 import numpy as np
 import pytest
 
-from absscale_ros.core import detect
+from absscale_ros.core import detect, detect_sheet
 
 DATA = Path(__file__).parents[1] / 'data' / 'sim_border'
 FRAMES = {f['file']: f for f in json.loads((DATA / 'frames.json').read_text())['frames']}
 
 
-def _run(fr, img=None):
+def _run(fr, img=None, **sheet):
     img = cv2.imread(str(DATA / fr['file'])) if img is None else img
-    return detect.detect(img, detect.DetectConfig(target=fr['target']), np.array(fr['K']),
-                         np.array(fr['D']))
+    cfg = detect.DetectConfig(target=fr['target'], sheet=detect_sheet.SheetConfig(**sheet))
+    return detect.detect(img, cfg, np.array(fr['K']), np.array(fr['D']))
 
 
 def _errors(found, true):
@@ -40,7 +40,7 @@ def test_blurred_sheet_with_a_corner_outside(name):
     assert det.scores()[k] <= 0.5  # the corner outside scores as extrapolated
 
 
-def test_sharp_sheet_cropped_by_the_border_is_exact():
+def _cropped():
     fr = FRAMES['indoor_paper_52_201.jpg']
     img = cv2.imread(str(DATA / fr['file']))
     true = np.array(fr['vertices_px'])
@@ -48,9 +48,22 @@ def test_sharp_sheet_cropped_by_the_border_is_exact():
     # Crop so the rightmost corner lies 30 % of its shorter side's width beyond the border.
     x1 = int(true[i, 0] - 0.3 * min(true[i, 0] - true[(i - 1) % 4, 0],
                                     true[i, 0] - true[(i + 1) % 4, 0]))
-    res = _run(fr, np.ascontiguousarray(img[:, :x1]))
+    return fr, np.ascontiguousarray(img[:, :x1]), true
+
+
+def test_sharp_sheet_cropped_by_the_border_is_exact():
+    fr, img, true = _cropped()
+    res = _run(fr, img)
     assert [d.target_type for d in res.detections] == ['sheet']
     assert _errors(res.detections[0].vertices_px, true).max() < 1.0
+
+
+def test_border_corner_off_reports_no_sheet_with_a_corner_outside():
+    # ``sheet.border_corner: false`` turns off both the sharp and the blurred border path.
+    fr, img, _ = _cropped()
+    assert _run(fr, img, border_corner=False).detections == ()
+    fr = FRAMES['indoor_paper_52_234.jpg']
+    assert _run(fr, border_corner=False).detections == ()
 
 
 def test_sheet_with_two_corners_outside_is_not_reported():
