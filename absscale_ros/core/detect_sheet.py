@@ -496,7 +496,8 @@ def _accept_hidden(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candida
         plain = [(r, sheet_partial.pentagon(r)) for r, _ in split]
         pents = [lines.full_px(p, scale) for r, pent in plain
                  for p in (pent, sheet_partial.sharp_pentagon(r, pent)) if p is not None]
-        paths.append(_Hidden([sheet_partial.hypotheses(p, SPLIT_SEEN * cfg.min_seen)
+        paths.append(_Hidden([[sheet_split.narrowed(h, image_bgr)
+                               for h in sheet_partial.hypotheses(p, SPLIT_SEEN * cfg.min_seen)]
                               for p in pents],
                              lambda hyp, out: sheet_split.finish(hyp, out, band, image_bgr),
                              seen_out=True, strict_cover=True))
