@@ -67,8 +67,9 @@ class CubeConfig:
         K (the one that explains the most vertices is used).
     :param blur_bands_px: when the sharp pass finds no cube, the faces' sides are looked for
         again as motion-blurred ramps (mid-level crossings), this far either way of the
-        rough side, one pass per band until a cube is found (empty turns it off; a wide
-        band alone misses short ramps next to another edge).
+        rough side, one pass per band, narrowest first, until a cube is found or no face
+        ramps wide enough in a band (empty turns it off; a wide band alone misses short ramps
+        next to another edge).
     :param split_regions: when no cube is found, cut each colour region that failed the face
         tests or the refinement into faces (``cube_split``: a face joined with a box of its
         own colour) and look again.
@@ -76,8 +77,9 @@ class CubeConfig:
     :param split_min_depth_px: smallest depth of a concave corner of a region's outline the
         cut goes along a side from, work-image px.
     :param small_cube_frac: a cube the sharp pass poses whose area is under this fraction of
-        the paper's smallest (``min_area_frac``) is the cube in view, too far away: the frame's
-        retries (split regions, blur) are skipped (0: never).
+        the paper's smallest (``min_area_frac``) is the cube in view, too far away, for
+        ``cube_track`` to follow (0: never). Under the paper's area at all, the frame's
+        retries (split regions, blur) are skipped: they pose the same cube again.
     :param track_full_every: frame after frame (``cube_track``), the whole frame is searched at
         least every this many frames, else only a box around the last frame's cubes (1: every
         frame whole).
@@ -597,11 +599,13 @@ def detect_cubes(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
                                     for f in cfg.focal_fracs]
     refined = _refine_each(image_bgr, rough, cfg)
     faces = [f for f in refined if f is not None]
-    tiny: list[targets.TargetDetection] = []
-    out = _cubes(image_bgr, list(faces), cfg, Ks, small=tiny)
-    if tiny and not out:
-        # The cube in view is posed, but too far away: the retries would find it again.
-        if small is not None and (roi is None or all(
+    posed: list[tuple[targets.TargetDetection, float]] = []
+    out = _cubes(image_bgr, list(faces), cfg, Ks, small=posed)
+    if posed and not out:
+        # The cube in view is posed, but under the paper's area: the retries would find it
+        # again. Far under it, it is the one for ``cube_track`` to follow.
+        tiny = [d for d, a in posed if a < cfg.small_cube_frac]
+        if tiny and small is not None and (roi is None or all(
                 _inside(d, roi, regions.clipped, image_bgr.shape, cfg) for d in tiny)):
             small += tiny
         return []
@@ -610,13 +614,18 @@ def detect_cubes(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
         split = _split_faces(image_bgr, regions, refined, cfg)
         if split:
             out = _cubes(image_bgr, faces + split, cfg, Ks)
-    for band in cfg.blur_bands_px if rough else ():
+    for band in sorted(cfg.blur_bands_px) if rough else ():
         if out:
             break
         # Motion blur smears a face's sides into ramps: the steepest point wanders along
         # them, and the mask stops short of a side shared with another face. Where nothing
         # is found, look again for the sides at the mid level of wider ramps.
-        out = _cubes(image_bgr, _refine_faces(image_bgr, rough, cfg, band), cfg, Ks, True)
+        kept = _refine_each(image_bgr, rough, cfg, band)
+        if not kept:
+            # No face ramps over BLUR_MIN_RAMP_FRAC of this band, as a smeared cube would (a
+            # 14-35 px streak ramps 7-17 px): a wider band only reaches other edges farther off.
+            break
+        out = _cubes(image_bgr, [f for f in kept if f is not None], cfg, Ks, True)
     if roi is not None and not all(_inside(d, roi, regions.clipped, image_bgr.shape, cfg)
                                    for d in out):
         return []
@@ -645,12 +654,12 @@ def _inside(det: targets.TargetDetection, roi: tuple[int, int, int, int], clippe
 
 def _cubes(image_bgr: npt.NDArray[np.uint8], faces: list[Face], cfg: CubeConfig,
            Ks: list[Array], blurred: bool = False,
-           small: list[targets.TargetDetection] | None = None
+           small: list[tuple[targets.TargetDetection, float]] | None = None
            ) -> list[targets.TargetDetection]:
     """
     Return the cubes that ``faces`` (refined, not yet with strips) assemble into;
-    ``blurred`` for faces of the blur retry. Add to ``small`` the cubes they pose that are
-    smaller than ``cfg.small_cube_frac`` of the paper's area (otherwise not posed at all).
+    ``blurred`` for faces of the blur retry. Add to ``small`` (cube, area over the paper's)
+    of the cubes they pose under the paper's area (without ``small``: not posed at all).
     """
     if not faces:
         return []
@@ -682,13 +691,14 @@ def _cubes(image_bgr: npt.NDArray[np.uint8], faces: list[Face], cfg: CubeConfig,
             continue
         area = sum(cv2.contourArea(faces[f].corners_px.astype(np.float32)) for f in members)
         min_area = cfg.min_area_frac * image_bgr.shape[0] * image_bgr.shape[1]
-        tiny = area < cfg.small_cube_frac * min_area and small is not None
-        if area < min_area and not tiny:
+        if area < min_area and small is None:
             continue  # the paper's area test, on the whole cube
         det = cube_assembly.cube_detection(
             [faces[f] for f in members], [labels[4 * f:4 * f + 4] for f in members],
             Ks, image_bgr.shape, cfg.shape_tol_frac)
-        if det is not None:
-            (small if tiny else out).append(det)
+        if det is not None and area < min_area and small is not None:
+            small.append((det, area / min_area))
+        elif det is not None:
+            out.append(det)
     out.sort(key=lambda d: -d.score)
     return out

@@ -41,8 +41,11 @@ def test_wide_blur_band_needs_smeared_sides(monkeypatch):
     name = 'outdoor_cube_3_02.jpg'
     assert FRAMES[name]['area_fraction'] == 0.0
     assert _cubes(name)[1] == []
+    assert _cubes(name, blur_bands_px=(24.0,))[1] == []
     monkeypatch.setattr(detect_cube, 'BLUR_FREE_BAND_PX', 100.0)  # no ramp test
-    assert _cubes(name)[1] != []
+    assert _cubes(name, blur_bands_px=(24.0,))[1] != []
+    # No face ramps over a quarter of the 12 px band: the 24 px band is not tried at all.
+    assert _cubes(name)[1] == []
 
 
 @pytest.mark.parametrize('name,min_recall',
