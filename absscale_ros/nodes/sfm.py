@@ -58,9 +58,8 @@ class SfmNode(Node):
                                         ('target_points', PointCloud2))}
         self._diag = common.DiagnosticsPublisher(self, 'reconstruction')
         group = MutuallyExclusiveCallbackGroup()  # the map is updated by one callback at a time
-        self._info_sub = self.create_subscription(CameraInfo, '/absscale/camera_info',
-                                                  self._on_info, common.RELIABLE,
-                                                  callback_group=group)
+        self.create_subscription(CameraInfo, '/absscale/camera_info', self._on_info,
+                                 common.RELIABLE, callback_group=group)
         self._detector = ThreadPoolExecutor(1, 'sfm_features')
         self._prefetch = sfm_live.FeaturePrefetch(self._detector.submit, 2 * p['pair_depth'] + 2)
         self._updater = ThreadPoolExecutor(1, 'sfm_update') if p['qos'] == common.LIVE else None
@@ -87,12 +86,9 @@ class SfmNode(Node):
 
     def _on_info(self, msg: CameraInfo) -> None:
         if self.session.engine is not None:
-            # The map's camera is fixed once it exists (the first keyframe's): the ingest's
-            # camera_info of every frame (1800 on the 60 s bag) would cost this process
-            # its deserialisation and a callback each, for nothing.
-            if self._info_sub is not None:
-                self.destroy_subscription(self._info_sub)
-                self._info_sub = None
+            # The map's camera is fixed once it exists (the first keyframe's). The subscription
+            # stays: destroying it from its own callback made --processes runs lose the
+            # end-of-bag map's messages now and then (test_run_end_to_end).
             return
         try:
             self._camera = conversions.camera_info_to_model(msg)

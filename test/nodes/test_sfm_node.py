@@ -125,7 +125,6 @@ def test_map_topics_match_the_core_and_every_input_is_acknowledged(context) -> N
     # Features of all but the first keyframe (it makes the engine) came from the worker
     # thread, and the map is the core's to the digit.
     assert node.session.features_prefetched == 5
-    assert node._info_sub is None  # the map's camera is fixed: camera_info no longer read
     assert r['reprojection_rms_px'] <= 1.0 and r['update_ms_median'] > 0.0
     assert r['target_vertices'] == len(targets)
     status = probe.diags[-1].status[0]
