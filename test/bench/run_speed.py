@@ -28,11 +28,17 @@ import time
 
 
 def _machine_cpu_s() -> tuple[float, float]:
-    """(busy, idle) CPU seconds of all cores since boot (/proc/stat; iowait counts as idle)."""
+    """
+    (busy, idle) CPU seconds of all cores since boot (/proc/stat; iowait counts as idle).
+
+    Busy is user + nice + system + irq + softirq: steal is time the hypervisor gave to others,
+    and guest time is already inside user.
+    """
     with open('/proc/stat') as f:
         ticks = [int(x) for x in f.readline().split()[1:]]
+    busy = ticks[0] + ticks[1] + ticks[2] + ticks[5] + ticks[6]
     idle = ticks[3] + ticks[4]
-    return (sum(ticks) - idle) / os.sysconf('SC_CLK_TCK'), idle / os.sysconf('SC_CLK_TCK')
+    return busy / os.sysconf('SC_CLK_TCK'), idle / os.sysconf('SC_CLK_TCK')
 
 
 def run_once(tree: Path, bag: str, config: str, extra: list[str]) -> dict:
