@@ -426,23 +426,41 @@ def _accept_blurred(image_bgr: npt.NDArray[np.uint8], quads_full: list[Array], b
     ``BLUR_ASPECT_CAP`` times ``cfg.aspect_tol``.
     """
     for quad in quads_full[:BLUR_MAX_QUADS]:
-        side = float(np.linalg.norm(quad - np.roll(quad, -1, axis=0), axis=1).min())
-        wide = max(band, cfg.blur_band_frac * side)
-        ramps = _side_ramps(image_bgr, quad, wide, None, None)
-        if ramps.max() < BLUR_MIN_RAMP_PX or not _blur_alike(ramps):
+        wide = _blur_band(quad, band, cfg)
+        if not _motion_ramps(_side_ramps(image_bgr, quad, wide, None, None)):
             continue  # already along the rough sides (the test below)
         refined = _refine_quads(image_bgr, [quad], wide, (wide, 0.5 * wide), blurred=True)[0]
         if refined is None or not sheet_checks.big_enough(refined[0], image_bgr.shape, cfg):
             continue
         ramps = _side_ramps(image_bgr, refined[0], wide, refined[3], refined[4])
-        if ramps.max() < BLUR_MIN_RAMP_PX or not _blur_alike(ramps):
+        if not _motion_ramps(ramps):
             continue  # sharp, or one side smeared by something else than motion
-        tol = sheet_checks.aspect_tolerance(refined[0], cfg, K,
-                                            max(1.0, float(ramps.max()) / BLUR_RAMP_PX),
-                                            BLUR_ASPECT_CAP, dist)
+        tol = _blur_aspect_tol(refined[0], ramps, cfg, K, dist)
         if sheet_checks.passes(image_bgr, refined, cfg, K, aspect_tol=tol, dist=dist):
             found.append((float(refined[1].mean()), refined[0], refined[0], None))
             return  # one blurred sheet at most: the masks outline it several times
+
+
+def _blur_band(corners: Array, band: float, cfg: SheetConfig) -> float:
+    """The band, px, a blurred sheet's sides are looked for in: ``cfg.blur_band_frac`` of
+    its shorter side, at least the sharp ``band``."""
+    side = float(np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1).min())
+    return max(band, cfg.blur_band_frac * side)
+
+
+def _motion_ramps(ramps: Array) -> bool:
+    """Return True when the sides' ramp widths, px, look like motion blur: one ramps over
+    ``BLUR_MIN_RAMP_PX`` or more, and opposite sides alike (``_blur_alike``)."""
+    return bool(ramps.max() >= BLUR_MIN_RAMP_PX) and _blur_alike(ramps)
+
+
+def _blur_aspect_tol(corners: Array, ramps: Array, cfg: SheetConfig, K: Array | None,
+                     dist: Array | None) -> float:
+    """The aspect tolerance of a blurred sheet: corner shifts grow with the widest ramp
+    (``BLUR_RAMP_PX``), up to ``BLUR_ASPECT_CAP`` times ``cfg.aspect_tol``."""
+    return sheet_checks.aspect_tolerance(corners, cfg, K,
+                                         max(1.0, float(ramps.max()) / BLUR_RAMP_PX),
+                                         BLUR_ASPECT_CAP, dist)
 
 
 def _blur_alike(ramps: Array) -> bool:
@@ -523,13 +541,10 @@ def _accept_blurred_border(image_bgr: npt.NDArray[np.uint8], hyps: list[sheet_pa
     hyps = [h for h in hyps if sheet_checks.aspect_ok(h.corners, image_bgr.shape, cfg, K,
                                                       cfg.rough_aspect_tol, dist)]
     for hyp in hyps[:BLUR_MAX_QUADS]:
-        side = float(np.linalg.norm(hyp.corners - np.roll(hyp.corners, -1, axis=0),
-                                    axis=1).min())
-        wide = max(band, cfg.blur_band_frac * side)
+        wide = _blur_band(hyp.corners, band, cfg)
         rough, n = sheet_partial.rough_sides(hyp)
-        ramps = sides.ramp_widths(image_bgr, rough, hyp.seen_ends, wide, None, None,
-                                  step_px=sides.blur_step(wide))
-        if ramps.max() < BLUR_MIN_RAMP_PX or not _blur_alike(ramps):
+        if not _motion_ramps(sides.ramp_widths(image_bgr, rough, hyp.seen_ends, wide, None,
+                                               None, step_px=sides.blur_step(wide))):
             continue
         out = sides.refine_many(image_bgr, [rough], [hyp.seen_ends], (wide, 0.5 * wide), [n],
                                 FIRST_PASS_SUPPORT, blurred=True)[0]
@@ -538,12 +553,10 @@ def _accept_blurred_border(image_bgr: npt.NDArray[np.uint8], hyps: list[sheet_pa
             continue
         ramps = sides.ramp_widths(image_bgr, out[0], hyp.seen_ends, wide, fin[3], fin[4],
                                   step_px=sides.blur_step(wide))
-        if ramps.max() < BLUR_MIN_RAMP_PX or not _blur_alike(ramps):
+        if not _motion_ramps(ramps):
             continue
-        tol = sheet_checks.aspect_tolerance(fin[0], cfg, K,
-                                            max(1.0, float(ramps.max()) / BLUR_RAMP_PX),
-                                            BLUR_ASPECT_CAP, dist)
-        if sheet_checks.passes(image_bgr, fin[:5], cfg, K, hyp.seen_ends, aspect_tol=tol,
+        if sheet_checks.passes(image_bgr, fin[:5], cfg, K, hyp.seen_ends,
+                               aspect_tol=_blur_aspect_tol(fin[0], ramps, cfg, K, dist),
                                dist=dist):
             support = float(fin[1].mean())
             vs = np.array([support] * 3 + [0.5 * support * float(hyp.seen_frac.min())])

@@ -219,12 +219,10 @@ class Candidates:
                 # the hidden-corner paths (their hypotheses fail or are refused there), only
                 # for the corner beyond the border (``sheet_border``, whiteness masks).
                 x, y, w, h = cv2.boundingRect(c)
+                cut = not (min(x, y) > 1 and x + w < shape[1] - 1 and y + h < shape[0] - 1)
                 # (Colour-edge regions only serve the line mode's colour seeds: ``white_regions``.)
-                inner = min(x, y) > 1 and x + w < shape[1] - 1 and \
-                    y + h < shape[0] - 1 and i != QUAD_ONLY_MASK and \
-                    (i < FREE_MASK or cfg.line_candidates)
-                if not (min(x, y) > 1 and x + w < shape[1] - 1 and y + h < shape[0] - 1) and \
-                        i < QUAD_ONLY_MASK:
+                inner = not cut and i != QUAD_ONLY_MASK and (i < FREE_MASK or cfg.line_candidates)
+                if cut and i < QUAD_ONLY_MASK:
                     self._border.append((c, grow))
                 quad = lines.rough_quad(c) if solidity >= cfg.min_solidity else None
                 quad = None if quad is None else offset(quad, grow)
@@ -242,7 +240,7 @@ class Candidates:
                     self._whites.append(white)
                     if i < FREE_MASK and cfg.split_gap > 0.0:
                         parts = _cut_off_parts(contours, min_area) if parts is None else parts
-                        if not self._add_split(c, parts, white) and i < FREE_MASK:
+                        if not self._add_split(c, parts, white):
                             self._pending.append((c, i, white, min_area))  # ``split_regions``
                 if new and quad is not None:
                     quads.append(quad)

@@ -18,29 +18,34 @@ Array = npt.NDArray[np.float64]
 SAMPLES = 64  # colour samples along each side
 MIN_SHOWN = 0.2  # of a side: the least that must show the sheet's colour inside it
 NARROW_SHOWN = 0.9  # of a side: less shown than this, it is refined where shown (``narrowed``)
+SPAN = (0.1, 0.9)  # the part of each side sampled, clear of its corners (``shown``)
 
 
-def shown(image_bgr: npt.NDArray[np.uint8], corners: Array, lines_: Array, colour: Array
-          ) -> tuple[Array, Array]:
+def shown(image_bgr: npt.NDArray[np.uint8], corners: Array, lines_: Array,
+          colour: Array | None = None) -> tuple[Array, Array]:
     """
     Return (4,) the fraction of each side (between its corners, clear of them by a tenth)
-    along which the colour just inside it is the sheet's ``colour`` (BGR), and (4, 2, 2)
-    where on each side the first stretch showing it ends and the last one begins.
+    along which the colour just inside it is the sheet's ``colour`` (BGR; None: the median
+    of those samples over all four sides), and (4, 2, 2) where on each side the first
+    stretch showing it ends and the last one begins.
     """
     h, w = image_bgr.shape[:2]
-    ts = np.linspace(0.1, 0.9, SAMPLES)
-    frac, runs = np.zeros(4), np.zeros((4, 2, 2))
+    ts = np.linspace(*SPAN, SAMPLES)
+    ends = np.roll(corners, -1, axis=0)
+    pts = corners[:, None] + ts[None, :, None] * (ends - corners)[:, None] \
+        - sheet_stub.INSIDE_PX * lines_[:, None, :2]
+    u = np.clip(np.round(pts[..., 0]).astype(int), 0, w - 1)
+    v = np.clip(np.round(pts[..., 1]).astype(int), 0, h - 1)
+    bgr = image_bgr[v, u].astype(np.float64)  # (4, SAMPLES, 3)
+    if colour is None:
+        colour = np.median(bgr.reshape(-1, 3), axis=0)
+    ok = np.linalg.norm(bgr - colour, axis=2) < sheet_stub.GO_ON_CONTRAST
+    frac, runs = ok.mean(axis=1), np.zeros((4, 2, 2))
     for s in range(4):
-        a, b = corners[s], corners[(s + 1) % 4]
-        pts = a + ts[:, None] * (b - a) - sheet_stub.INSIDE_PX * lines_[s, :2]
-        u = np.clip(np.round(pts[:, 0]).astype(int), 0, w - 1)
-        v = np.clip(np.round(pts[:, 1]).astype(int), 0, h - 1)
-        ok = np.linalg.norm(image_bgr[v, u].astype(np.float64) - colour, axis=1) \
-            < sheet_stub.GO_ON_CONTRAST
-        frac[s] = float(ok.mean())
         # the first and the last run of samples showing the sheet (where its edges change)
-        edges = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(int), [0]])))
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], ok[s].astype(int), [0]])))
         if len(edges):
+            a, b = corners[s], ends[s]
             runs[s] = [a + ts[edges[1] - 1] * (b - a), a + ts[edges[-2]] * (b - a)]
     return frac, runs
 
@@ -55,30 +60,16 @@ def narrowed(hyp: sheet_partial.Partial, image_bgr: npt.NDArray[np.uint8]
     its ends by several pixels (seed 57, frame 200: 18 % off the sheet's aspect).
     """
     rough, _ = sheet_partial.rough_sides(hyp)
-    ts = np.linspace(0.1, 0.9, SAMPLES)
-    h, w = image_bgr.shape[:2]
-    c = hyp.corners
-    # (as ``shown``, all four sides in one pass: the sheet's colour is their samples' median)
-    pts = c[:, None] + ts[None, :, None] * (np.roll(c, -1, axis=0) - c)[:, None] \
-        - sheet_stub.INSIDE_PX * rough[:, None, :2]
-    u = np.clip(np.round(pts[..., 0]).astype(int), 0, w - 1)
-    v = np.clip(np.round(pts[..., 1]).astype(int), 0, h - 1)
-    bgr = image_bgr[v, u].astype(np.float64)  # (4, SAMPLES, 3)
-    colour = np.median(bgr.reshape(-1, 3), axis=0)
-    ok = np.linalg.norm(bgr[:2] - colour, axis=2) < sheet_stub.GO_ON_CONTRAST
-    frac = ok.mean(axis=1)
-    gap = int(np.argmin(frac))
+    frac, runs = shown(image_bgr, hyp.corners, rough)
+    gap = int(np.argmin(frac[:2]))
     if frac[gap] >= NARROW_SHOWN or frac[gap] < MIN_SHOWN:
         return hyp
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], ok[gap].astype(int), [0]])))
-    run_end, run_start = ts[edges[1] - 1], ts[edges[-2]]
     a, b = hyp.corners[gap], hyp.corners[gap + 1]
     # A stretch from a corner to where the first run shown ends (or from where the last
     # begins): no longer than all the samples shown and the unsampled end, else it spans
     # the gap (one run only).
-    most = (ts[0] + (ts[-1] - ts[0]) * frac[gap] + 0.05) * np.hypot(*(b - a))
-    ends_ok = [e for e in (np.array([a, a + run_end * (b - a)]),
-                           np.array([a + run_start * (b - a), b]))
+    most = (SPAN[0] + (SPAN[1] - SPAN[0]) * frac[gap] + 0.05) * np.hypot(*(b - a))
+    ends_ok = [e for e in (np.array([a, runs[gap, 0]]), np.array([runs[gap, 1], b]))
                if np.hypot(*(e[1] - e[0])) <= most]
     if not ends_ok:
         return hyp
