@@ -70,6 +70,12 @@ class _Keyframe:
     # in its camera) and the pixels that refined each
 
 
+def _measured(kf: _Keyframe) -> list[dense_stereo.DepthMap]:
+    """The keyframe's depth maps measured from image matches: its pairs and its sweep, not
+    the far planes filled from them (``FACADE``), which must not feed back."""
+    return [m for side, m in kf.depths.items() if side != FACADE]
+
+
 def _angle_deg(a: FloatArray, b: FloatArray) -> float:
     cos = np.dot(a, b) / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-12)
     return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
@@ -315,13 +321,12 @@ class DenseFusion:
         _, grey, K = kf.view
         h, w = grey.shape
         covered = np.zeros((h, w), np.uint8)
-        for side, m in kf.depths.items():
-            if side != FACADE:
-                p = dense_stereo.transform(m.points_camera()[0], K)
-                u = np.rint(p[:, 0] / p[:, 2]).astype(np.intp)
-                v = np.rint(p[:, 1] / p[:, 2]).astype(np.intp)
-                ok = (u >= 0) & (u < w) & (v >= 0) & (v < h)
-                covered[v[ok], u[ok]] = 1
+        for m in _measured(kf):
+            p = dense_stereo.transform(m.points_camera()[0], K)
+            u = np.rint(p[:, 0] / p[:, 2]).astype(np.intp)
+            v = np.rint(p[:, 1] / p[:, 2]).astype(np.intp)
+            ok = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+            covered[v[ok], u[ok]] = 1
         return cv2.dilate(covered, np.ones((3, 3), np.uint8)) > 0
 
     def _nearby_points(self, stamps: list[int], i: int, stride: int = 8) -> FloatArray:
@@ -331,7 +336,7 @@ class DenseFusion:
         for s in stamps[max(0, i - self.sweep.span):i + self.sweep.span + 1]:
             other = self._frames[s]
             T = dense_stereo.relative_pose(other.pose, kf.pose)  # other camera -> kf camera
-            for m in (m for side, m in other.depths.items() if side != FACADE):
+            for m in _measured(other):
                 out.append(dense_stereo.transform(m.points_camera(stride)[0], T[:3, :3],
                                                   T[:3, 3]))
         return np.concatenate(out) if out else np.zeros((0, 3))
@@ -340,7 +345,7 @@ class DenseFusion:
         """Depths to sweep: what the depth maps of nearby keyframes hold, widened."""
         span = self.sweep.span
         depths = [d.depth[d.depth > 0][::7] for s in stamps[max(0, i - span):i + span + 1]
-                  for side, d in self._frames[s].depths.items() if side != FACADE]
+                  for d in _measured(self._frames[s])]
         values = np.concatenate(depths) if depths else np.zeros(0)
         if values.size < 100:
             return guess / 4.0, guess * 4.0
@@ -350,8 +355,8 @@ class DenseFusion:
     def _depth_guess(self, stamps: list[int], i: int) -> float:
         """Median depth of the nearest keyframe that has a depth map (for the pair choice)."""
         for j in sorted(range(len(stamps)), key=lambda j: abs(j - i)):
-            for side, d in self._frames[stamps[j]].depths.items():
-                if side != FACADE and np.any(d.depth > 0):
+            for d in _measured(self._frames[stamps[j]]):
+                if np.any(d.depth > 0):
                     return float(np.median(d.depth[d.depth > 0]))
         return 1.0 / self.stereo.target_baseline_ratio * self._typical_step(stamps, i)
 
