@@ -181,12 +181,6 @@ def _sample(img: Image32, x: Image32, y: Image32, width: int = 4096) -> FloatArr
     return cv2.remap(img, mx, my, cv2.INTER_LINEAR).ravel()[:len(x)].astype(np.float64)
 
 
-def _stats(img: Image32, win: tuple[int, int]) -> tuple[Image32, Image32]:
-    mu = cv2.boxFilter(img, -1, win)
-    sd = np.sqrt(np.maximum(cv2.boxFilter(img * img, -1, win) - mu * mu, 0.0))
-    return mu, sd
-
-
 def facade_planes(grey: Image32, others: list[tuple[Image32, FloatArray]], K: FloatArray,
                   covered: npt.NDArray[np.bool_], cfg: FacadeConfig,
                   sweep_cfg: dense_sweep.SweepConfig,
@@ -218,7 +212,7 @@ def facade_planes(grey: Image32, others: list[tuple[Image32, FloatArray]], K: Fl
     size = 2 * cfg.hull_px + 1
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
     g, o, Kf = fine if fine is not None else (grey, others, K)
-    textured = _stats(g, win)[1] >= cfg.fill_texture
+    textured = dense_sweep.local_stats(g, win)[1] >= cfg.fill_texture
     for n, d, mask in fit_planes(pts, cfg):
         ray = np.median(pts[mask], axis=0)
         if n @ ray / np.linalg.norm(ray) < np.cos(np.radians(cfg.max_slant_deg)):
@@ -275,7 +269,7 @@ def _consistent(grey: Image32, others: list[tuple[Image32, FloatArray]], K: Floa
     """Pixels where the views warped through plane ``p`` agree with ``grey``."""
     h, w = grey.shape
     win = (cfg.window_px, cfg.window_px)
-    mu_r, sd_r = _stats(grey, win)
+    mu_r, sd_r = dense_sweep.local_stats(grey, win)
     K_inv = np.linalg.inv(K)
     agree = np.zeros((h, w), np.int32)
     against = np.zeros((h, w), bool)
@@ -284,7 +278,7 @@ def _consistent(grey: Image32, others: list[tuple[Image32, FloatArray]], K: Floa
         warped = cv2.warpPerspective(img, H, (w, h), flags=cv2.INTER_LINEAR
                                      | cv2.WARP_INVERSE_MAP, borderValue=-1.0)
         inside = cv2.erode((warped >= 0).astype(np.uint8), np.ones(win, np.uint8)) > 0
-        mu_w, sd_w = _stats(warped, win)
+        mu_w, sd_w = dense_sweep.local_stats(warped, win)
         ncc = (cv2.boxFilter(grey * warped, -1, win) - mu_r * mu_w) / \
             np.maximum(sd_r * sd_w, 1e-3)
         textured = sd_r >= cfg.fill_texture

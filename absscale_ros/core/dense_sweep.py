@@ -76,6 +76,13 @@ def pinhole_view(image_bgr: np.ndarray, camera: CameraModel,
     return small, grey, np.asarray(cam.K, np.float64)
 
 
+def local_stats(img: Image32, win: tuple[int, int]) -> tuple[Image32, Image32]:
+    """Mean and standard deviation of ``img`` over a ``win`` box around each pixel (ZNCC)."""
+    mu = cv2.boxFilter(img, -1, win)
+    sd = np.sqrt(np.maximum(cv2.boxFilter(img * img, -1, win) - mu * mu, 0.0))
+    return mu, sd
+
+
 def sweep(ref: Image32, others: list[tuple[Image32, FloatArray]], K: FloatArray,
           near_m: float, far_m: float, cfg: SweepConfig,
           plane: tuple[FloatArray, float] | None = None) -> Image32:
@@ -93,8 +100,7 @@ def sweep(ref: Image32, others: list[tuple[Image32, FloatArray]], K: FloatArray,
     """
     h, w = ref.shape
     win = (cfg.window_px, cfg.window_px)
-    mu_r = cv2.boxFilter(ref, -1, win)
-    sd_r = np.sqrt(np.maximum(cv2.boxFilter(ref * ref, -1, win) - mu_r * mu_r, 0.0))
+    mu_r, sd_r = local_stats(ref, win)
     stats = (mu_r, sd_r + np.float32(1e-2))
     K_inv = np.linalg.inv(K)
     u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
