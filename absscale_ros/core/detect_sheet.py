@@ -514,8 +514,11 @@ def _accept_hidden(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candida
         plain = [(r, sheet_partial.pentagon(r)) for r, _ in split]
         pents = [lines.full_px(p, scale) for r, pent in plain
                  for p in (pent, sheet_partial.sharp_pentagon(r, pent)) if p is not None]
+        # (narrowed after the rough tests ``_accept_partial`` applies: they see only corners,
+        # which it keeps, and most hypotheses fail them)
         paths.append(_Hidden([[sheet_split.narrowed(h, image_bgr)
-                               for h in sheet_partial.hypotheses(p, SPLIT_SEEN * cfg.min_seen)]
+                               for h in sheet_partial.hypotheses(p, SPLIT_SEEN * cfg.min_seen)
+                               if _rough_ok(h, False, True, image_bgr.shape, band, cfg, K, dist)]
                               for p in pents],
                              lambda hyp, out: sheet_split.finish(hyp, out, band, image_bgr),
                              seen_out=True, strict_cover=True))
@@ -605,11 +608,8 @@ def _accept_partial(image_bgr: npt.NDArray[np.uint8], paths: list[_Hidden], band
     """
     # A corner beyond the border has no occluder to show for the cut (tiles), except on the
     # border path, whose cut runs along the border (``sheet_border``).
-    groups = [[[h for h in group
-                if (path.border or
-                    not sheet_candidates.touches_border(h.corners, image_bgr.shape, band))
-                and (not path.rough_aspect or sheet_checks.aspect_ok(
-                    h.corners, image_bgr.shape, cfg, K, cfg.rough_aspect_tol, dist))]
+    groups = [[[h for h in group if _rough_ok(h, path.border, path.rough_aspect,
+                                              image_bgr.shape, band, cfg, K, dist)]
                for group in path.groups] for path in paths]
     jobs = [(path, h) for path, gs in zip(paths, groups) for g in gs for h in g]
     rough = [sheet_partial.rough_sides(h) for _, h in jobs]
@@ -643,6 +643,17 @@ def _accept_partial(image_bgr: npt.NDArray[np.uint8], paths: list[_Hidden], band
                                    out[7] if path.seen_out else out[5], vs))
             if best is not None and all(np.abs(best[1][1] - f[1]).max() > 4.0 for f in found):
                 found.append(best[1])
+
+
+def _rough_ok(hyp: sheet_partial.Partial, border: bool, rough_aspect: bool,
+              shape: tuple[int, ...], band: float, cfg: SheetConfig, K: Array | None,
+              dist: Array | None) -> bool:
+    """``_accept_partial``'s tests of a hypothesis's rough corners: none within ``band`` of
+    the image border (unless on the ``border`` path) and, with ``rough_aspect``, the aspect
+    within ``cfg.rough_aspect_tol``."""
+    return (border or not sheet_candidates.touches_border(hyp.corners, shape, band)) and \
+        (not rough_aspect or sheet_checks.aspect_ok(hyp.corners, shape, cfg, K,
+                                                    cfg.rough_aspect_tol, dist))
 
 
 def _guess_K(focal_frac: float, shape: tuple[int, ...]) -> Array:
