@@ -521,7 +521,7 @@ def _accept_hidden(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candida
                                if _rough_ok(h, False, True, image_bgr.shape, band, cfg, K, dist)]
                               for p in pents],
                              lambda hyp, out: sheet_split.finish(hyp, out, band, image_bgr),
-                             seen_out=True, strict_cover=True))
+                             seen_out=True, strict_cover=True, rough_tested=True))
     outside: list[list[sheet_partial.Partial]] = []
     if cfg.min_seen < 1.0 and cfg.border_corner and border and work is not None:
         outside = sheet_border.groups(border, work, cfg, scale, image_bgr.shape)
@@ -587,6 +587,7 @@ class _Hidden:
     seen_out: bool = False
     strict_cover: bool = False
     border: bool = False
+    rough_tested: bool = False  # the hypotheses passed ``_rough_ok`` already
 
 
 def _accept_partial(image_bgr: npt.NDArray[np.uint8], paths: list[_Hidden], band: float,
@@ -608,8 +609,8 @@ def _accept_partial(image_bgr: npt.NDArray[np.uint8], paths: list[_Hidden], band
     """
     # A corner beyond the border has no occluder to show for the cut (tiles), except on the
     # border path, whose cut runs along the border (``sheet_border``).
-    groups = [[[h for h in group if _rough_ok(h, path.border, path.rough_aspect,
-                                              image_bgr.shape, band, cfg, K, dist)]
+    groups = [[[h for h in group if path.rough_tested or _rough_ok(
+                    h, path.border, path.rough_aspect, image_bgr.shape, band, cfg, K, dist)]
                for group in path.groups] for path in paths]
     jobs = [(path, h) for path, gs in zip(paths, groups) for g in gs for h in g]
     rough = [sheet_partial.rough_sides(h) for _, h in jobs]

@@ -61,3 +61,64 @@ def test_hidden_paths_see_whiteness_regions_only():
     assert len(dets) == 1
     far = np.hypot(*(dets[0].vertices_px[:, None] - true_px[None]).T).min(axis=0)
     assert np.median(far) < 1.0
+
+
+def _shown_per_side(image_bgr, corners, lines_, colour=None):
+    """``sheet_split.shown`` as it was written before vectorising: one side at a time."""
+    from absscale_ros.core import sheet_split, sheet_stub
+    h, w = image_bgr.shape[:2]
+    ts = np.linspace(*sheet_split.SPAN, sheet_split.SAMPLES)
+    ends = np.roll(corners, -1, axis=0)
+    pts = corners[:, None] + ts[None, :, None] * (ends - corners)[:, None] \
+        - sheet_stub.INSIDE_PX * lines_[:, None, :2]
+    u = np.clip(np.round(pts[..., 0]).astype(int), 0, w - 1)
+    v = np.clip(np.round(pts[..., 1]).astype(int), 0, h - 1)
+    bgr = image_bgr[v, u].astype(np.float64)
+    colour = np.median(bgr.reshape(-1, 3), axis=0) if colour is None else colour
+    ok = np.linalg.norm(bgr - colour, axis=2) < sheet_stub.GO_ON_CONTRAST
+    runs = np.zeros((4, 2, 2))
+    for s in range(4):
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], ok[s].astype(int), [0]])))
+        if len(edges):
+            a, b = corners[s], ends[s]
+            runs[s] = [a + ts[edges[1] - 1] * (b - a), a + ts[edges[-2]] * (b - a)]
+    return ok.mean(axis=1), runs
+
+
+def test_split_path_narrows_after_the_rough_tests_with_the_same_answer():
+    """
+    A page a box cuts in two (rendered seed 57, frames 216 and 252): the split path's
+    hypotheses are narrowed (``sheet_split.narrowed``) only once they pass the rough corner
+    tests, which is the same as narrowing all first, since narrowing never moves a corner;
+    ``shown`` (vectorised) gives what the per-side walk gave, bit for bit.
+    """
+    import cv2
+    import json
+    from absscale_ros.core import sheet_partial, sheet_split
+    data = Path(__file__).parents[1] / 'data' / 'sim_frames'
+    frames = {f['file']: f for f in json.loads((data / 'frames.json').read_text())['frames']}
+    for name in ('indoor_paper_57o_216.jpg', 'indoor_paper_57o_252.jpg'):
+        img, K = cv2.imread(str(data / name)), np.array(frames[name]['K'])
+        cfg = detect_sheet.SheetConfig(sheet='a4')
+        scale = cfg.work_max_side_px / 1280.0
+        cands = sheet_candidates.Candidates(sheet_candidates.shrink(img, scale), cfg)
+        hyps = [h for r, _ in cands.split_regions
+                for p in (sheet_partial.pentagon(r),) if p is not None
+                for h in sheet_partial.hypotheses(lines.full_px(p, scale), 0.2)]
+        band = max(6.0, 3.0 / scale)
+        kept = [h for h in hyps if detect_sheet._rough_ok(h, False, True, img.shape, band,
+                                                          cfg, K, None)]
+        assert 0 < len(kept) < len(hyps)  # the tests drop some, and keep the page's
+        narrowed = 0
+        for h in hyps:
+            out = sheet_split.narrowed(h, img)
+            np.testing.assert_array_equal(out.corners, h.corners)
+            narrowed += not np.array_equal(out.seen_ends, h.seen_ends)
+            rough, _ = sheet_partial.rough_sides(h)
+            for colour in (None, np.array([200.0, 205.5, 210.25])):
+                want, got = _shown_per_side(img, h.corners, rough, colour), \
+                    sheet_split.shown(img, h.corners, rough, colour)
+                assert want[0].tobytes() == got[0].tobytes()
+                assert want[1].tobytes() == got[1].tobytes()
+        assert narrowed > 0
+        assert len(detect_sheet.detect_sheets(img, cfg, K)) == 1
