@@ -38,9 +38,7 @@ SMALL_INSET_PX = 2.0  # work px a region may reach beyond a refined too-small sh
 # of ``min_seen``: a part the occluder cut off is a small region, whose rough outline falls
 # short of the side it shows by a work pixel or two (the refined sides are exact)
 SPLIT_SEEN = 0.5
-# Stub hypotheses refined per frame at most (whitest, longest sides first): 4 instead of 8
-# changed 4 frames of the tuning bags, all false outlines on 61, and cut the p95 CPU x0.88.
-STUB_MAX_HYPS = 4
+STUB_MAX_HYPS = 8  # stub hypotheses refined per frame at most (whitest, longest sides first)
 
 
 @dataclass(frozen=True)
@@ -110,9 +108,6 @@ class SheetConfig:
         times its size (square root of its area) away, for the hidden-corner path: a box on
         a sheet's corner, seen from low, cuts the sheet in two (``sheet_split``; 0 turns it
         off).
-    :param split_max_regions: joined regions tried per frame at most, whitest first: a
-        page's come first, and each costs a few hypotheses (tuning bags with a board on the
-        wall: up to 12 per frame, none the page).
     :param border_corner: a corner beyond the image border is extrapolated like a hidden one
         (``sheet_border``: both sides at it seen over ``min_seen``, the cut along the border),
         also under motion blur (``blur_band_frac``): a pan sweeps the sheet out of view.
@@ -154,7 +149,6 @@ class SheetConfig:
     min_seen: float = 0.4
     stub_px: float = 8.0
     split_gap: float = 2.0
-    split_max_regions: int = 4
     border_corner: bool = True
     blur_band_frac: float = 0.4
 
@@ -173,8 +167,6 @@ class SheetConfig:
             raise ValueError(f'focal_range must be 0 < low <= high, got {self.focal_range}')
         if not 0.0 < self.aspect_floor <= self.aspect_tol:
             raise ValueError(f'need 0 < aspect_floor <= aspect_tol, got {self.aspect_floor}')
-        if self.split_max_regions < 0:
-            raise ValueError(f'split_max_regions must be >= 0, got {self.split_max_regions}')
         if self.max_shade < 1.0:
             raise ValueError(f'max_shade must be >= 1, got {self.max_shade}')
         self.models()  # raises ValueError on an unknown sheet
@@ -519,7 +511,7 @@ def _accept_hidden(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candida
     if cfg.min_seen < 1.0 and cfg.split_gap > 0.0 and split:
         # (not merged like the masks' outlines: a rough corner a pixel off moves the hidden
         # corner's seen fractions across ``min_seen``)
-        plain = [(r, sheet_partial.pentagon(r)) for r, _ in split[:cfg.split_max_regions]]
+        plain = [(r, sheet_partial.pentagon(r)) for r, _ in split]
         pents = [lines.full_px(p, scale) for r, pent in plain
                  for p in (pent, sheet_partial.sharp_pentagon(r, pent)) if p is not None]
         # (narrowed after the rough tests ``_accept_partial`` applies: they see only corners,

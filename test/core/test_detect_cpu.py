@@ -122,26 +122,3 @@ def test_split_path_narrows_after_the_rough_tests_with_the_same_answer():
                 assert want[1].tobytes() == got[1].tobytes()
         assert narrowed > 0
         assert len(detect_sheet.detect_sheets(img, cfg, K)) == 1
-
-
-def test_split_path_tries_the_whitest_joined_regions_only():
-    """
-    The split path tries ``split_max_regions`` joined regions, whitest first: on the rendered
-    seed 57 frames a box cuts the page in two, and the page's joined region is among the
-    first two of three, so the default cap (4) still finds it; without the path (0) the page
-    is lost, so it is this path that finds it.
-    """
-    import cv2
-    import json
-    data = Path(__file__).parents[1] / 'data' / 'sim_frames'
-    frames = {f['file']: f for f in json.loads((data / 'frames.json').read_text())['frames']}
-    for name in ('indoor_paper_57o_216.jpg', 'indoor_paper_57o_252.jpg'):
-        img, K = cv2.imread(str(data / name)), np.array(frames[name]['K'])
-        cfg = detect_sheet.SheetConfig(sheet='a4')
-        assert cfg.split_max_regions == 4
-        cands = sheet_candidates.Candidates(
-            sheet_candidates.shrink(img, cfg.work_max_side_px / 1280.0), cfg)
-        assert len(cands.split_regions) >= 3
-        assert len(detect_sheet.detect_sheets(img, cfg, K)) == 1
-        assert len(detect_sheet.detect_sheets(img, replace(cfg, split_max_regions=2), K)) == 1
-        assert detect_sheet.detect_sheets(img, replace(cfg, split_max_regions=0), K) == []
