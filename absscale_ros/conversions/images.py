@@ -70,7 +70,7 @@ def array_to_image_msg(array: npt.ArrayLike, encoding: str, stamp_ns: int = 0,
         raise ValueError(f'{encoding} needs an array of {dtype} shaped HxW'
                          f'{"x%d" % channels if channels > 1 else ""}, got {image.dtype} '
                          f'{image.shape}')
-    msg = Image(check_fields=True)  # keeps the data array as is (see the package doc, conversions/__init__.py)
+    msg = Image(check_fields=True)  # keeps the data array as is (see __init__.py)
     set_header(msg, stamp_ns, frame_id)
     msg.height, msg.width = int(image.shape[0]), int(image.shape[1])
     msg.encoding = encoding
