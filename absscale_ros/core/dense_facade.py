@@ -46,6 +46,7 @@ class FacadeConfig:
     planes: int = 4  # planes fitted at most
     tolerance: float = 0.01  # RANSAC inlier distance, fraction of depth
     trials: int = 200  # RANSAC samples per plane
+    ransac_sample: int = 0  # far depths a hypothesis is scored on at most (0: all)
     min_inliers: int = 200  # fewer far depths on a plane: not a plane
     max_slant_deg: float = 60.0  # planes seen further from their normal: not façades
     refine: bool = True  # planes aligned photometrically (Gauss-Newton) before the fill
@@ -58,6 +59,10 @@ class FacadeConfig:
     fill_texture: float = 4.0  # ... where its window's grey-level deviation is at least this
     fill_grey: float = 6.0  # a plain pixel's mean grey level within this of the far view's
     fill_views: int = 2  # far views that must agree (none may contradict)
+    occluders: int = 0  # keyframes on each side whose points nearer than near_m mark pixels
+    # as not façade (something in front; 0: the keyframe's own maps only)
+    enclosed_px: int = 0  # a plain pixel only with agreeing texture within this both above and
+    # below, or left and right, px at full size (the sky over a roof line is not; 0: off)
 
 
 def fine_view(image_bgr: np.ndarray, camera: CameraModel) -> tuple[np.ndarray, FloatArray]:
@@ -96,17 +101,24 @@ def fit_planes(points: FloatArray, cfg: FacadeConfig,
             break
         p = points[idx]
         tol = cfg.tolerance * depth[idx]
+        # hypotheses scored on a sample (CPU), the winner's inliers taken from all points
+        few = rng.permutation(len(p))[:cfg.ransac_sample] if cfg.ransac_sample else slice(None)
+        q, q_tol = p[few], tol[few]
         best, best_n = None, 0
-        for a, b, c in rng.integers(0, len(p), (cfg.trials, 3)):
-            n = np.cross(p[b] - p[a], p[c] - p[a])
+        for a, b, c in rng.integers(0, len(q), (cfg.trials, 3)):
+            n = np.cross(q[b] - q[a], q[c] - q[a])
             norm = np.linalg.norm(n)
             if norm < 1e-9:
                 continue
             n /= norm
-            inside = np.abs((p - p[a]) @ n) <= tol
-            if inside.sum() > best_n:
-                best, best_n = inside, int(inside.sum())
-        if best is None or best_n < cfg.min_inliers:
+            count = int(np.count_nonzero(np.abs(dense_stereo.transform(q - q[a], n[None])[:, 0])
+                                         <= q_tol))
+            if count > best_n:
+                best, best_n = (q[a], n), count
+        if best is None:
+            break
+        best = np.abs(dense_stereo.transform(p - best[0], best[1][None])[:, 0]) <= tol
+        if best.sum() < cfg.min_inliers:
             break
         for _ in range(2):  # least-squares refit, inliers again
             q = p[best]
@@ -253,10 +265,20 @@ def facade_fill(grey: Image32, others: list[tuple[Image32, FloatArray]], K: Floa
         cand = region & ~covered & (out == 0) & (zp >= cfg.near_m) & (zp <= cfg.far_m)
         if not cand.any():
             continue
-        keep = cand & _consistent(grey, others, K, p, cfg) if fine is None else \
-            cand & _coarse(_consistent(*fine, p, cfg), (w, h))
+        keep = cand & _consistent(grey, others, K, p, cfg, _box(cand, 1.0, cfg.window_px)) \
+            if fine is None else cand & _coarse(_consistent(
+                *fine, p, cfg, _box(cand, fine[0].shape[1] / w, cfg.window_px)), (w, h))
         out[keep] = zp[keep]
     return out
+
+
+def _box(mask: Mask, zoom: float, margin: int) -> tuple[int, int, int, int]:
+    """Bounding box (x0, y0, x1, y1) of ``mask`` at ``zoom`` times its size, widened by
+    ``margin`` px and clipped to the image."""
+    v, u = np.nonzero(mask)
+    h, w = (int(round(n * zoom)) for n in mask.shape)
+    return (max(0, int(u.min() * zoom) - margin), max(0, int(v.min() * zoom) - margin),
+            min(w, int((u.max() + 1) * zoom) + margin), min(h, int((v.max() + 1) * zoom) + margin))
 
 
 def _coarse(mask: npt.NDArray[np.bool_], size: tuple[int, int]) -> npt.NDArray[np.bool_]:
@@ -265,30 +287,54 @@ def _coarse(mask: npt.NDArray[np.bool_], size: tuple[int, int]) -> npt.NDArray[n
 
 
 def _consistent(grey: Image32, others: list[tuple[Image32, FloatArray]], K: FloatArray,
-                p: FloatArray, cfg: FacadeConfig) -> npt.NDArray[np.bool_]:
-    """Pixels where the views warped through plane ``p`` agree with ``grey``."""
+                p: FloatArray, cfg: FacadeConfig,
+                box: tuple[int, int, int, int] | None = None) -> npt.NDArray[np.bool_]:
+    """
+    Pixels where the views warped through plane ``p`` agree with ``grey``, inside ``box``
+    (x0, y0, x1, y1; the rest False): only the candidates' box is warped.
+    """
     h, w = grey.shape
+    x0, y0, x1, y1 = box or (0, 0, w, h)
+    ref = grey[y0:y1, x0:x1]
     win = (cfg.window_px, cfg.window_px)
-    mu_r, sd_r = dense_sweep.local_stats(grey, win)
+    mu_r, sd_r = dense_sweep.local_stats(ref, win)
+    shift = np.array([[1.0, 0.0, x0], [0.0, 1.0, y0], [0.0, 0.0, 1.0]])
     K_inv = np.linalg.inv(K)
-    agree = np.zeros((h, w), np.int32)
-    against = np.zeros((h, w), bool)
+    agree = np.zeros(ref.shape, np.int32)
+    against = np.zeros(ref.shape, bool)
+    textured = sd_r >= cfg.fill_texture
     for img, T in others:
-        H = K @ (T[:3, :3] + np.outer(T[:3, 3], p)) @ K_inv
-        warped = cv2.warpPerspective(img, H, (w, h), flags=cv2.INTER_LINEAR
+        H = K @ (T[:3, :3] + np.outer(T[:3, 3], p)) @ K_inv @ shift
+        warped = cv2.warpPerspective(img, H, (x1 - x0, y1 - y0), flags=cv2.INTER_LINEAR
                                      | cv2.WARP_INVERSE_MAP, borderValue=-1.0)
         inside = cv2.erode((warped >= 0).astype(np.uint8), np.ones(win, np.uint8)) > 0
         mu_w, sd_w = dense_sweep.local_stats(warped, win)
-        ncc = (cv2.boxFilter(grey * warped, -1, win) - mu_r * mu_w) / \
+        ncc = (cv2.boxFilter(ref * warped, -1, win) - mu_r * mu_w) / \
             np.maximum(sd_r * sd_w, 1e-3)
-        textured = sd_r >= cfg.fill_texture
         ok_t = textured & (ncc >= cfg.fill_ncc)
         ok_p = cfg.fill_plain & ~textured & (sd_w < cfg.fill_texture) & \
             (np.abs(mu_r - mu_w) <= cfg.fill_grey)
         ok = inside & (ok_t | ok_p)
         agree += ok
         against |= inside & ~ok
-    return (agree >= cfg.fill_views) & ~against
+    keep = (agree >= cfg.fill_views) & ~against
+    if cfg.fill_plain and cfg.enclosed_px > 0:  # plain only between textured agreement
+        keep &= textured | _enclosed(keep & textured, cfg.enclosed_px)
+    out = np.zeros((h, w), bool)
+    out[y0:y1, x0:x1] = keep
+    return out
+
+
+def _enclosed(mask: Mask, reach: int) -> Mask:
+    """Pixels with ``mask`` within ``reach`` px both above and below, or both left and
+    right: a plain wall between windows, not the sky over a roof line."""
+    m = mask.astype(np.uint8)
+    col, row = np.ones((reach, 1), np.uint8), np.ones((1, reach), np.uint8)
+    above = cv2.dilate(m, col, anchor=(0, reach - 1))
+    below = cv2.dilate(m, col, anchor=(0, 0))
+    left = cv2.dilate(m, row, anchor=(reach - 1, 0))
+    right = cv2.dilate(m, row, anchor=(0, 0))
+    return ((above & below) | (left & right)) > 0
 
 
 def pooled(p: FloatArray, T_world_cam: FloatArray,

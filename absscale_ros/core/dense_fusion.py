@@ -41,6 +41,7 @@ class FusionConfig:
     sweep_consistent: int = 1  # ... with a point only the plane sweep found (noisier)
     facade_consistent: int = 1  # ... with a point only a far plane gave (``dense_facade``)
     facade_rel: float = 0.002  # ... agreeing within this fraction of its depth
+    facade_revote: bool = True  # a keyframe's new far points re-check its earlier neighbours'
     neighbours: int = 3  # keyframes on each side a depth pixel is checked against
     max_new_maps: int = 2  # stereo pairs computed per update at most (the rest wait)
     both_sides: bool = True  # a partner on each side of a keyframe (two depth maps), else one
@@ -74,6 +75,21 @@ def _measured(kf: _Keyframe) -> list[dense_stereo.DepthMap]:
     """The keyframe's depth maps measured from image matches: its pairs and its sweep, not
     the far planes filled from them (``FACADE``), which must not feed back."""
     return [m for side, m in kf.depths.items() if side != FACADE]
+
+
+def _pixels_hit(points: list[FloatArray], K: FloatArray,
+                shape: tuple[int, ...]) -> npt.NDArray[np.bool_]:
+    """Pixels of a (h, w) pinhole view (K) that camera-frame ``points`` fall on, dilated by
+    one pixel (the gaps between projected points)."""
+    h, w = shape
+    hit = np.zeros((h, w), np.uint8)
+    for pts in points:
+        p = dense_stereo.transform(pts, K)
+        u = np.rint(p[:, 0] / p[:, 2]).astype(np.intp)
+        v = np.rint(p[:, 1] / p[:, 2]).astype(np.intp)
+        ok = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        hit[v[ok], u[ok]] = 1
+    return cv2.dilate(hit, np.ones((3, 3), np.uint8)) > 0
 
 
 def _angle_deg(a: FloatArray, b: FloatArray) -> float:
@@ -129,9 +145,11 @@ class DenseFusion:
             outcome[i] = self._refresh_depth(stamps, i)
         for i in reversed(range(len(stamps))):
             if self._refresh_facade(stamps, i) == _NEW:
-                # its far points vote for the earlier neighbours' far points, and theirs for it
+                # its far points vote for the earlier neighbours' far points (which are fused
+                # again when ``facade_revote``: several keyframe clouds per update), theirs for it
+                revote = self.cfg.facade_revote
                 for j in range(max(0, i - self.cfg.neighbours), i + 1):
-                    if j == i or FACADE in self._frames[stamps[j]].depths:
+                    if j == i or revote and FACADE in self._frames[stamps[j]].depths:
                         outcome[j] = _NEW
         for i, s in enumerate(stamps):
             kf = self._frames[s]
@@ -301,6 +319,8 @@ class DenseFusion:
             fine.append((other.fine[0].astype(np.float32), T))
         colour, grey, K = kf.view
         covered = self._covered(kf)
+        if cfg.occluders > 0:
+            covered |= self._occluded(stamps, i)
         fine_ref = (kf.fine[0].astype(np.float32), fine, kf.fine[1])
         planes = dense_facade.facade_planes(grey, others, K, covered, cfg, self.sweep, fine_ref)
         kf.planes = [(p, n) for p, _, n in planes if n > 0]
@@ -319,15 +339,27 @@ class DenseFusion:
     def _covered(self, kf: _Keyframe) -> npt.NDArray[np.bool_]:
         """Pixels of the keyframe's sweep view that its other depth maps cover."""
         _, grey, K = kf.view
-        h, w = grey.shape
-        covered = np.zeros((h, w), np.uint8)
-        for m in _measured(kf):
-            p = dense_stereo.transform(m.points_camera()[0], K)
-            u = np.rint(p[:, 0] / p[:, 2]).astype(np.intp)
-            v = np.rint(p[:, 1] / p[:, 2]).astype(np.intp)
-            ok = (u >= 0) & (u < w) & (v >= 0) & (v < h)
-            covered[v[ok], u[ok]] = 1
-        return cv2.dilate(covered, np.ones((3, 3), np.uint8)) > 0
+        return _pixels_hit([m.points_camera()[0] for m in _measured(kf)], K, grey.shape)
+
+    def _occluded(self, stamps: list[int], i: int, stride: int = 2) -> npt.NDArray[np.bool_]:
+        """
+        Pixels of keyframe ``i``'s sweep view where a neighbour's measured points lie nearer
+        than the far planes begin: something stands in front of any façade there (a post, a
+        tree its own maps missed), which a plain or repeating patch can hide from the fill
+        check.
+        """
+        kf = self._frames[stamps[i]]
+        _, grey, K = kf.view
+        span, near = self.facade.occluders, []
+        for s in stamps[max(0, i - span):i + span + 1]:
+            other = self._frames[s]
+            if other is kf:
+                continue
+            T = dense_stereo.relative_pose(other.pose, kf.pose)  # other camera -> kf camera
+            for m in _measured(other):
+                pts = dense_stereo.transform(m.points_camera(stride)[0], T[:3, :3], T[:3, 3])
+                near.append(pts[(pts[:, 2] > 1e-6) & (pts[:, 2] < self.facade.near_m)])
+        return _pixels_hit(near, K, grey.shape)
 
     def _nearby_points(self, stamps: list[int], i: int, stride: int = 8) -> FloatArray:
         """A thinned sample of the depth maps of keyframe ``i`` and its neighbours, in its
