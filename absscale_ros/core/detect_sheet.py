@@ -38,7 +38,10 @@ SMALL_INSET_PX = 2.0  # work px a region may reach beyond a refined too-small sh
 # of ``min_seen``: a part the occluder cut off is a small region, whose rough outline falls
 # short of the side it shows by a work pixel or two (the refined sides are exact)
 SPLIT_SEEN = 0.5
-STUB_MAX_HYPS = 8  # stub hypotheses refined per frame at most (whitest, longest sides first)
+STUB_MAX_HYPS = 8  # stub hypotheses refined per frame at most (whitest, longest sides first;
+# as many again of the notched regions)
+NOTCH_INSIDE = 0.95  # of a region's outline within a hidden-corner sheet's: the part seen
+NOTCH_SLACK_PX = 2.0  # work px a region's outline may lie outside that sheet's seen outline
 
 
 @dataclass(frozen=True)
@@ -104,6 +107,10 @@ class SheetConfig:
     :param stub_px: a sheet whose hidden corner covers nearly all of one side is recovered
         from the camera intrinsics when that side shows an edge over this many px next to
         its seen corner (``sheet_stub``; 0 turns it off).
+    :param notch_solidity: regions of the whiteness masks down to this solidity (area over
+        convex hull area; the other hidden-corner paths take 0.75 or more) are tried as a
+        stub sheet (``sheet_stub``): a box standing on a sheet's corner whose own corner
+        reaches deep into the part seen, hiding nearly all of one side (0.75 or more: off).
     :param split_gap: a region may be joined with a small white region at most this many
         times its size (square root of its area) away, for the hidden-corner path: a box on
         a sheet's corner, seen from low, cuts the sheet in two (``sheet_split``; 0 turns it
@@ -148,6 +155,7 @@ class SheetConfig:
     ridge_ratio: float = 0.3
     min_seen: float = 0.4
     stub_px: float = 8.0
+    notch_solidity: float = 0.55
     split_gap: float = 2.0
     border_corner: bool = True
     blur_band_frac: float = 0.4
@@ -279,7 +287,8 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
     if not found:
         hidden = [r for r in cands.white_regions if not _whole_small(r[0], small, scale)]
         _accept_hidden(image_bgr, hidden, scale, band, cfg, K, found, dist,
-                       cands.split_regions, cands.border_regions, work)
+                       cands.split_regions, cands.border_regions, work,
+                       [r for r in cands.notched_regions if not _whole_small(r[0], small, scale)])
     found.sort(key=lambda f: -f[0])
     return [_detection(f, sheet_checks.best_model(f[1], image_bgr.shape, cfg, K)) for f in found]
 
@@ -478,11 +487,14 @@ def _accept_hidden(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candida
                    found: list[Found], dist: Array | None,
                    split: list[sheet_candidates.Region] | None = None,
                    border: list[sheet_candidates.Region] | None = None,
-                   work: npt.NDArray[np.uint8] | None = None) -> None:
+                   work: npt.NDArray[np.uint8] | None = None,
+                   notched: list[sheet_candidates.Region] | None = None) -> None:
     """
     The hidden-corner paths: five-sided regions (``sheet_partial``, when ``cfg.min_seen`` < 1;
     also of the ``split`` regions, a region joined with a part an occluder cut off),
-    then, when they give no sheet, a stub (``sheet_stub``, ``cfg.stub_px`` > 0). Both sets of
+    then, when they give no sheet, a stub (``sheet_stub``, ``cfg.stub_px`` > 0; also of the
+    ``notched`` regions, ``Candidates.notched_regions``, up to ``STUB_MAX_HYPS`` more). Both
+    sets of
     hypotheses are refined in one ``_accept_partial`` call: a frame without a sheet tries both,
     and one call per pass costs about a millisecond less than two.
     """
@@ -493,7 +505,10 @@ def _accept_hidden(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candida
                              lambda hyp, out: sheet_partial.finish(hyp, out, band)))
     if cfg.stub_px > 0.0:
         K_ = K if K is not None else _guess_K(cfg.focal_frac, image_bgr.shape)
-        hyps = sheet_stub.first_hypotheses(regions, scale, K_, cfg.stub_px, STUB_MAX_HYPS)
+        # (the notched regions with hypotheses of their own: a white object elsewhere in the
+        # frame would otherwise use them all up)
+        hyps = [h for rs in (regions, notched or []) for h in
+                sheet_stub.first_hypotheses(rs, scale, K_, cfg.stub_px, STUB_MAX_HYPS)]
         aspect = tuple(m.aspect for m in cfg.models())
         paths.append(_Hidden(
             [hyps],  # one stub sheet at most: a fallback
@@ -528,9 +543,39 @@ def _accept_hidden(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candida
         paths.append(_Hidden(outside, lambda hyp, out: sheet_partial.finish(hyp, out, band),
                              border=True))
     _accept_partial(image_bgr, paths, band, cfg, K, found, dist=dist)
+    _follow_notches(found, regions + (notched or []), scale)
     if not found and cfg.blur_band_frac > 0.0:
         _accept_blurred_border(image_bgr, [h for g in outside for h in g], band, cfg, K, found,
                                dist)
+
+
+def _follow_notches(found: list[Found], regions: list[sheet_candidates.Region], scale: float
+                    ) -> None:
+    """
+    Replace the seen outline (5, 2) of each sheet found with a hidden corner by one that
+    follows the occluder's notch (``sheet_partial.notched``) of the largest region lying within
+    it (``NOTCH_INSIDE`` of its outline within ``NOTCH_SLACK_PX`` work px) over at least half
+    its area: the region seen. (Pixel precision: a box standing on a sheet's corner reaches
+    into the hull of the part seen.)
+    """
+    for i, (score, corners, outline, vs) in enumerate(found):
+        if vs is None or isinstance(outline, tuple) or len(outline) != 5:
+            continue
+        centre = outline.mean(axis=0)
+        ls = np.array([lines.line_through(a, b, centre)
+                       for a, b in zip(outline, np.roll(outline, -1, axis=0))
+                       if np.hypot(*(b - a)) > 1e-6])  # (a placed stub's cut is a corner)
+        area = cv2.contourArea(outline.astype(np.float32))
+        # (the largest first: the lowest whiteness level's, nearest the occluder's edge)
+        for contour, _ in sorted(regions, key=lambda r: -cv2.contourArea(r[0])):
+            if cv2.contourArea(contour) < 0.5 * area * scale ** 2:
+                continue
+            pts = lines.full_px(sheet_stub.dense(contour.reshape(-1, 2).astype(np.float64)),
+                                scale)
+            inside = (pts @ ls[:, :2].T + ls[:, 2]).max(axis=1) <= NOTCH_SLACK_PX / scale
+            if inside.mean() >= NOTCH_INSIDE:
+                found[i] = (score, corners, sheet_partial.notched(outline, pts), vs)
+                break
 
 
 def _accept_blurred_border(image_bgr: npt.NDArray[np.uint8], hyps: list[sheet_partial.Partial],

@@ -171,6 +171,7 @@ class Candidates:
         self._edges_done = False
         self._split: list[tuple[npt.NDArray[np.int32], float]] = []
         self._border: list[Region] = []
+        self._notched: list[Region] = []  # (``plausible`` only once asked for)
         self._add(white_masks(work_white), 0)
         self._white_count = len(self._regions)
 
@@ -213,13 +214,17 @@ class Candidates:
             parts = None  # this mask's small regions (``_cut_off_parts``), once needed
             for c, node in zip(contours, tree[0] if tree is not None else ()):
                 solidity = region_shape(c, min_area, cfg)
-                if solidity < PENT_MIN_SOLIDITY:
+                notch = cfg.notch_solidity <= solidity < PENT_MIN_SOLIDITY
+                if solidity < PENT_MIN_SOLIDITY and not notch:
                     continue  # too small, too round or too long, or far from convex
                 # A region the border cuts has a side along it with no edge to refine: not for
                 # the hidden-corner paths (their hypotheses fail or are refused there), only
                 # for the corner beyond the border (``sheet_border``, whiteness masks).
                 x, y, w, h = cv2.boundingRect(c)
                 cut = not (min(x, y) > 1 and x + w < shape[1] - 1 and y + h < shape[0] - 1)
+                if notch:
+                    self._add_notched(c, grow, i, cut)
+                    continue
                 # (Colour-edge regions only serve the line mode's colour seeds: ``white_regions``.)
                 inner = not cut and i != QUAD_ONLY_MASK and (i < FREE_MASK or cfg.line_candidates)
                 if cut and i < QUAD_ONLY_MASK:
@@ -244,6 +249,27 @@ class Candidates:
                             self._pending.append((c, i, white, min_area))  # ``split_regions``
                 if new and quad is not None:
                     quads.append(quad)
+
+    def _add_notched(self, contour: npt.NDArray[np.int32], grow: float, mask: int,
+                     cut: bool) -> None:
+        """Keep a region of a whiteness mask that is too concave for the other hidden-corner
+        paths (``notched_regions``)."""
+        if not cut and mask < QUAD_ONLY_MASK:
+            self._notched.append((contour, grow))
+
+    @property
+    def notched_regions(self) -> list[Region]:
+        """
+        Regions of the whiteness masks (those ``white_regions`` come from) whose solidity is
+        below ``PENT_MIN_SOLIDITY`` but at least ``cfg.notch_solidity``, whitest first: a box
+        standing on a sheet's corner whose own corner reaches deep into the part seen (seed
+        61: 0.62-0.69). Their five-sided outlines would be a sheet's hull cut by a chord
+        across the box, so they are only tried as a stub (``sheet_stub``).
+        """
+        whites = [plausible(self.work_bgr, c, self.cfg) for c, _ in self._notched]
+        order = np.argsort([-w for w in whites if w is not None], kind='stable')
+        kept = [r for r, w in zip(self._notched, whites) if w is not None]
+        return [kept[i] for i in order]
 
     def _add_split(self, contour: npt.NDArray[np.int32],
                    parts: list[tuple[npt.NDArray[np.int32], tuple[int, int, int, int]]],

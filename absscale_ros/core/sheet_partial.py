@@ -27,6 +27,9 @@ FINE_BANDS = (4.0, 3.0)
 FINE_FRAC = 0.01  # of the hull's perimeter: the simplification that keeps blunted corners
 BLUNT_PX = 6.0  # work px: an edge this short between two longer ones is a blunted corner
 BLUNT_FRAC = 0.34  # ... and shorter than this fraction of both neighbours
+# px inside every side of the seen outline: there the seen region's own outline is an
+# occluder's notch, which the outline follows (a box's corner reaching into the sheet)
+NOTCH_PX = 4.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -152,3 +155,34 @@ def finish(hyp: Partial, out: sides.Refined, band_px: float, hidden_slack: float
             for s, q in zip((2, 3), cuts)]
     outline = np.array([corners[0], corners[1], corners[2], cuts[0], cuts[1]])
     return corners, supports, steps, inside, outside, outline
+
+
+def notched(poly: Array, region: Array) -> Array:
+    """
+    Return the seen outline ``poly`` (5, 2) (three seen corners, then the cut points on the
+    two sides at the hidden corner) with its cut replaced by the longest stretch of the seen
+    ``region``'s outline (M, 2) running more than ``NOTCH_PX`` inside all its sides, when
+    that stretch begins and ends nearer the cut than any other side: an occluder reaching
+    into the sheet (a box's corner in front of it) is not outlined as sheet. (A stretch
+    ending elsewhere is a corner the region's outline rounds off.)
+    """
+    centre = poly.mean(axis=0)
+    ls = np.array([lines.line_through(a, c, centre) for a, c in zip(poly, np.roll(poly, -1, 0))])
+    depth = -(region @ ls[:, :2].T + ls[:, 2])  # (M, 5) px inside each side's line
+    # (a cut at a seen corner, a placed stub's, adds no side)
+    depth[:, np.hypot(*(np.roll(poly, -1, 0) - poly).T) < 1e-6] = np.inf
+    deep = depth.min(axis=1) > NOTCH_PX
+    if not deep.any() or deep.all():
+        return poly
+    # The longest run of deep points along the closed outline, from its first point after a
+    # shallow one.
+    start = int(np.argmin(deep))
+    rolled = np.roll(deep, -start)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], rolled.astype(int), [0]])))
+    a, e = max(zip(edges[::2], edges[1::2]), key=lambda r: r[1] - r[0])
+    run = np.roll(region, -start, axis=0)[a:e]
+    if (np.argmin(np.roll(depth, -start, axis=0)[[a, e - 1]], axis=1) != 3).any():
+        return poly
+    if np.hypot(*(run[0] - poly[3])) > np.hypot(*(run[-1] - poly[3])):
+        run = run[::-1]  # from the cut on side 2 to the one on side 3
+    return np.vstack([poly[:4], run, poly[4:]])

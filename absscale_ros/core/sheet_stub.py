@@ -195,7 +195,7 @@ def polygons(contour: npt.NDArray[np.int32], grow_px: float = 0.0) -> list[Array
     return out
 
 
-def _dense(points: Array, step_px: float = 2.0) -> Array:
+def dense(points: Array, step_px: float = 2.0) -> Array:
     """Return a closed polyline (N, 2) with points at most about ``step_px`` apart (contours
     keep only the ends of straight runs, and an occluder's straight edge is one)."""
     ends = np.roll(points, -1, axis=0)
@@ -221,7 +221,7 @@ def first_hypotheses(regions: list[tuple[npt.NDArray[np.int32], float]], scale: 
                 continue  # the same outline from another mask
             polys.append(poly)
             if outline is None:
-                outline = lines.full_px(_dense(contour.reshape(-1, 2).astype(np.float64)), scale)
+                outline = lines.full_px(dense(contour.reshape(-1, 2).astype(np.float64)), scale)
             for h in hypotheses(lines.full_px(poly, scale), K, stub_px, outline):
                 if any(np.abs(h.corners[:3] - o.corners[:3]).max() <= 6.0 for o in out):
                     continue
