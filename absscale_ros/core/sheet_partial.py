@@ -25,8 +25,9 @@ Array = npt.NDArray[np.float64]
 # sheets (two frames of the unseen seed 42).
 FINE_BANDS = (4.0, 3.0)
 FINE_FRAC = 0.01  # of the hull's perimeter: the simplification that keeps blunted corners
-BLUNT_PX = 6.0  # work px: an edge this short between two longer ones is a blunted corner
-BLUNT_FRAC = 0.34  # ... and shorter than this fraction of both neighbours
+BLUNT_PX = 8.0  # work px: an edge this short between two longer ones is a blunted corner
+BLUNT_FRAC = 0.4  # ... and shorter than this fraction of both neighbours (a page of 0.6 % of
+# the image, seed 81: corners cut by edges of 4-7 work px, 0.34-0.6 of their neighbours)
 # px inside every side of the seen outline: there the seen region's own outline is an
 # occluder's notch, which the outline follows (a box's corner reaching into the sheet)
 NOTCH_PX = 4.0
