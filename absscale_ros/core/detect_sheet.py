@@ -38,8 +38,8 @@ SMALL_INSET_PX = 2.0  # work px a region may reach beyond a refined too-small sh
 # of ``min_seen``: a part the occluder cut off is a small region, whose rough outline falls
 # short of the side it shows by a work pixel or two (the refined sides are exact)
 SPLIT_SEEN = 0.5
-STUB_MAX_HYPS = 8  # stub hypotheses refined per frame at most (whitest, longest sides first;
-# as many again of the notched regions)
+STUB_MAX_HYPS = 8  # stub hypotheses refined per frame at most (whitest, longest sides first)
+NOTCH_MAX_HYPS = 4  # ... and of the notched regions (``Candidates.notched_regions``)
 NOTCH_INSIDE = 0.95  # of a region's outline within a hidden-corner sheet's: the part seen
 NOTCH_SLACK_PX = 2.0  # work px a region's outline may lie outside that sheet's seen outline
 
@@ -494,10 +494,9 @@ def _accept_hidden(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candida
     The hidden-corner paths: five-sided regions (``sheet_partial``, when ``cfg.min_seen`` < 1;
     also of the ``split`` regions, a region joined with a part an occluder cut off),
     then, when they give no sheet, a stub (``sheet_stub``, ``cfg.stub_px`` > 0; also of the
-    ``notched`` regions, ``Candidates.notched_regions``, up to ``STUB_MAX_HYPS`` more). Both
-    sets of
-    hypotheses are refined in one ``_accept_partial`` call: a frame without a sheet tries both,
-    and one call per pass costs about a millisecond less than two.
+    ``notched`` regions, ``Candidates.notched_regions``, up to ``NOTCH_MAX_HYPS`` more). Both
+    sets of hypotheses are refined in one ``_accept_partial`` call: a frame without a sheet
+    tries both, and one call per pass costs about a millisecond less than two.
     """
     paths: list[_Hidden] = []
     if cfg.min_seen < 1.0:
@@ -508,8 +507,8 @@ def _accept_hidden(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candida
         K_ = K if K is not None else _guess_K(cfg.focal_frac, image_bgr.shape)
         # (the notched regions with hypotheses of their own: a white object elsewhere in the
         # frame would otherwise use them all up)
-        hyps = [h for rs in (regions, notched or []) for h in
-                sheet_stub.first_hypotheses(rs, scale, K_, cfg.stub_px, STUB_MAX_HYPS)]
+        hyps = [h for rs, cap in ((regions, STUB_MAX_HYPS), (notched or [], NOTCH_MAX_HYPS))
+                for h in sheet_stub.first_hypotheses(rs, scale, K_, cfg.stub_px, cap)]
         aspect = tuple(m.aspect for m in cfg.models())
         paths.append(_Hidden(
             [hyps],  # one stub sheet at most: a fallback
