@@ -265,18 +265,20 @@ def facade_fill(grey: Image32, others: list[tuple[Image32, FloatArray]], K: Floa
         cand = region & ~covered & (out == 0) & (zp >= cfg.near_m) & (zp <= cfg.far_m)
         if not cand.any():
             continue
-        keep = cand & _consistent(grey, others, K, p, cfg, _box(cand, 1.0, cfg.window_px)) \
+        keep = cand & _consistent(grey, others, K, p, cfg, _box(cand, (h, w), cfg.window_px)) \
             if fine is None else cand & _coarse(_consistent(
-                *fine, p, cfg, _box(cand, fine[0].shape[1] / w, cfg.window_px)), (w, h))
+                *fine, p, cfg, _box(cand, fine[0].shape, cfg.window_px)), (w, h))
         out[keep] = zp[keep]
     return out
 
 
-def _box(mask: Mask, zoom: float, margin: int) -> tuple[int, int, int, int]:
-    """Bounding box (x0, y0, x1, y1) of ``mask`` at ``zoom`` times its size, widened by
-    ``margin`` px and clipped to the image."""
+def _box(mask: Mask, shape: tuple[int, ...], margin: int) -> tuple[int, int, int, int]:
+    """Bounding box (x0, y0, x1, y1) of ``mask`` in an image of ``shape`` (h, w), the same
+    view at a larger size (zoom: the ratio of widths), widened by ``margin`` px and clipped to
+    that image. (Its height need not be the zoomed mask's: both sizes are rounded.)"""
     v, u = np.nonzero(mask)
-    h, w = (int(round(n * zoom)) for n in mask.shape)
+    h, w = shape[:2]
+    zoom = w / mask.shape[1]
     return (max(0, int(u.min() * zoom) - margin), max(0, int(v.min() * zoom) - margin),
             min(w, int((u.max() + 1) * zoom) + margin), min(h, int((v.max() + 1) * zoom) + margin))
 

@@ -177,3 +177,17 @@ def test_near_points_of_a_neighbour_mark_what_stands_in_front_of_the_facade() ->
     seen = (p[:, 0] >= 0) & (p[:, 0] < p[:, 2] * grey.shape[1]) & (p[:, 1] >= 0) & \
         (p[:, 1] < p[:, 2] * grey.shape[0])
     assert np.mean(marked[v[seen], u[seen]]) > 0.8
+
+
+def test_fill_at_full_size_when_the_heights_do_not_scale_alike() -> None:
+    # Sizes are rounded at each scale (1242x375 -> 621x188 -> ...): the full-size view may be
+    # shorter than the sweep view times the width ratio. The candidates' box stays inside it
+    # (it reached 2 rows beyond and the fill raised ValueError, a shape mismatch).
+    grey, others, K, covered, planes, (ref, fine, K_fine), _, _ = _fixture_planes(FACADE)
+    everywhere = [(p, np.ones(grey.shape, bool)) for p, _, _ in planes]
+    tall = dense_facade.facade_fill(grey, others, K, covered, everywhere, FACADE,
+                                    (ref, fine, K_fine))
+    short = dense_facade.facade_fill(grey, others, K, covered, everywhere, FACADE,
+                                     (ref[:-2], [(f[:-2], T) for f, T in fine], K_fine))
+    assert np.count_nonzero(tall) > 1000
+    assert abs(np.count_nonzero(short) - np.count_nonzero(tall)) < 0.02 * np.count_nonzero(tall)
