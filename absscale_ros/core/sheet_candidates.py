@@ -214,7 +214,7 @@ class Candidates:
             parts = None  # this mask's small regions (``_cut_off_parts``), once needed
             for c, node in zip(contours, tree[0] if tree is not None else ()):
                 solidity = region_shape(c, min_area, cfg)
-                notch = cfg.notch_solidity <= solidity < PENT_MIN_SOLIDITY
+                notch = 0.0 < solidity and cfg.notch_solidity <= solidity < PENT_MIN_SOLIDITY
                 if solidity < PENT_MIN_SOLIDITY and not notch:
                     continue  # too small, too round or too long, or far from convex
                 # A region the border cuts has a side along it with no edge to refine: not for

@@ -137,3 +137,17 @@ def test_sim_frame_small_target_rejected(fr):
     img = cv2.imread(str(DATA / fr['file']))
     res = detect.detect(img, detect.DetectConfig(target=fr['target']), np.array(fr['K']))
     assert res.detections == (), fr['what']
+
+
+def test_sim_frame_notched_regions_pass_the_area_and_roundness_tests():
+    # ``region_shape`` gives 0 for a region too small, too round or too long: not a notched
+    # one even at ``notch_solidity`` 0 (every solidity), which took them all in (specks too).
+    from absscale_ros.core import detect_sheet, sheet_candidates
+    img = cv2.imread(str(DATA / 'indoor_paper_61o_220.jpg'))
+    cfg = detect_sheet.SheetConfig(sheet='a4', notch_solidity=0.0)
+    scale = cfg.work_max_side_px / max(img.shape[:2])
+    cands = sheet_candidates.Candidates(sheet_candidates.shrink(img, scale), cfg)
+    h, w = cands.work_bgr.shape[:2]
+    min_area = sheet_candidates.ROUGH_AREA_SLACK * cfg.min_area_frac * h * w
+    shapes = [sheet_candidates.region_shape(c, min_area, cfg) for c, _ in cands.notched_regions]
+    assert shapes and min(shapes) > 0.0
