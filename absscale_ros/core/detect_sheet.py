@@ -499,10 +499,11 @@ def _accept_hidden(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candida
     tries both, and one call per pass costs about a millisecond less than two.
     """
     paths: list[_Hidden] = []
+    # (the five-sided regions' hypotheses, grouped by region: retried as blurred below)
+    five = [sheet_partial.hypotheses(lines.full_px(p, scale), cfg.min_seen)
+            for p in sheet_candidates.pentagons(regions)] if cfg.min_seen < 1.0 else []
     if cfg.min_seen < 1.0:
-        pents = [lines.full_px(p, scale) for p in sheet_candidates.pentagons(regions)]
-        paths.append(_Hidden([sheet_partial.hypotheses(p, cfg.min_seen) for p in pents],
-                             lambda hyp, out: sheet_partial.finish(hyp, out, band)))
+        paths.append(_Hidden(five, lambda hyp, out: sheet_partial.finish(hyp, out, band)))
     if cfg.stub_px > 0.0:
         K_ = K if K is not None else _guess_K(cfg.focal_frac, image_bgr.shape)
         # (the notched regions with hypotheses of their own: a white object elsewhere in the
@@ -550,8 +551,7 @@ def _accept_hidden(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candida
     if not found and cfg.blur_band_frac > 0.0 and cfg.min_seen < 1.0:
         # A box on the corner of a sheet under motion blur: the five-sided regions' hypotheses
         # retried the same way (on seeds 80 and 82, 25 of 39 misses were 12-30 px streaks).
-        pents = [lines.full_px(p, scale) for p in sheet_candidates.pentagons(regions)]
-        hyps = [h for p in pents for h in sheet_partial.hypotheses(p, cfg.min_seen)
+        hyps = [h for g in five for h in g
                 if not sheet_candidates.touches_border(h.corners, image_bgr.shape, band)]
         _accept_blurred_border(image_bgr, hyps, band, cfg, K, found, dist, hidden=True)
 
