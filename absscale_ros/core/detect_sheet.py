@@ -496,7 +496,10 @@ def _accept_hidden(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candida
     then, when they give no sheet, a stub (``sheet_stub``, ``cfg.stub_px`` > 0; also of the
     ``notched`` regions, ``Candidates.notched_regions``, up to ``NOTCH_MAX_HYPS`` more). Both
     sets of hypotheses are refined in one ``_accept_partial`` call: a frame without a sheet
-    tries both, and one call per pass costs about a millisecond less than two.
+    tries both, and one call per pass costs about a millisecond less than two. A sheet found
+    gets the occluder's notch in its outline (``_follow_notches``); with none found, the
+    corner-beyond-the-border and five-sided hypotheses are retried as smeared by motion blur
+    (``_accept_blurred_border``).
     """
     paths: list[_Hidden] = []
     # (the five-sided regions' hypotheses, grouped by region: retried as blurred below)
