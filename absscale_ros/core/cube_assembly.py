@@ -75,7 +75,8 @@ def _posing(face: 'Face') -> bool:
     border), and seen at most 70 deg off-axis.
     """
     sides = np.hypot(*(face.corners_px - face.corners_px[[1, 2, 3, 0]]).T)
-    return not face.thin and face.cut < 0 and sides.min() >= MIN_POSING_ASPECT * sides.max()
+    return not face.thin and face.cut < 0 and face.outside < 0 and \
+        sides.min() >= MIN_POSING_ASPECT * sides.max()
 
 
 def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks: list[Array],
@@ -90,9 +91,10 @@ def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks:
     face are left out, and faces left with none of their corners; None when no vertex where
     two colours meet is left.
     """
-    # (nor the two corners where the image border cuts a face: the border's, not the cube's)
-    measured = [(0, 3) if f.thin else [c for c in range(4) if f.cut < 0 or
-                                       (c - f.cut) % 4 > 1] for f in faces]
+    # (nor the two corners where the image border cuts a face: the border's, not the cube's,
+    # nor a corner beyond it)
+    measured = [(0, 3) if f.thin else [c for c in range(4) if (f.cut < 0 or (c - f.cut) % 4 > 1)
+                                       and c != f.outside] for f in faces]
     keys = sorted({int(lab[c]) for lab, cs in zip(labels, measured) for c in cs})
     index = {k: i for i, k in enumerate(keys)}
     meeting: list[list[Array]] = [[] for _ in keys]
@@ -116,14 +118,20 @@ def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks:
     completed = {f: c for f, c in completed.items()
                  if c is not None and _posing(dataclasses.replace(faces[f], corners_px=c, cut=-1))}
     posing = [p or f in completed for f, p in enumerate(posing)]
+    # A smeared cut face poses nothing, but its seen part still lies where a pose puts it.
     keep, proj = cube_geometry.explained(vertices, list(np.flatnonzero(posing)),
                                          [f.corners_px for f in faces],
                                          [f.thin for f in faces],
-                                         [f.runs_on for f in faces], Ks, shape_tol_frac,
-                                         completed)
+                                         [f.runs_on and f.cut < 0 for f in faces], Ks,
+                                         shape_tol_frac, completed)
     h, w = shape[:2]
     keep &= (vertices >= BORDER_PX).all(axis=1) & (vertices[:, 0] <= w - 1 - BORDER_PX) & (
         vertices[:, 1] <= h - 1 - BORDER_PX)
+    # A corner a face loses to the border or to a post in front hides its colour there: a
+    # vertex another face puts at it would go without that colour (a wrong id).
+    lost = {int(lab[c]) for f, lab, cs in zip(faces, labels, measured) if not f.thin
+            for c in range(4) if c not in cs}
+    keep &= np.array([k not in lost for k in keys])
     if not any(keep[v] and bin(int(masks[v])).count('1') >= 2 for v in range(len(keys))):
         return None
     seen = [any(keep[index[int(lab[c])]] for c in cs) for lab, cs in zip(labels, measured)]

@@ -10,9 +10,11 @@ mask. Corners of different faces that meet are merged into one cube vertex: the 
 (least squares) to all the edges meeting there, as the paper does when three edges do not
 meet exactly. Faces sharing an edge form one cube. A face the image border cuts along one
 side keeps its other sides and the corners between them; sharp, it also poses the cube,
-completed from its whole side (``cube_geometry.complete_cut``). When no cube is found, the
-regions that fail the tests or the refinement are cut into faces (``cube_split``: a face
-joined in the mask with a box of its own colour) and the cube looked for again.
+completed from its whole side (``cube_geometry.complete_cut``); so does a face a post in front
+cuts along its edge (``cube_occluder``), and a face the border cuts across a corner keeps its
+seen corners (``cube_border``). When no cube is found, the regions that fail the tests or the
+refinement are cut into faces (``cube_split``: a face joined in the mask with a box of its
+own colour) and the cube looked for again.
 """
 from dataclasses import dataclass
 
@@ -20,8 +22,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from absscale_ros.core import (cube_assembly, cube_geometry, cube_split, cube_strips, lines,
-                               sides, targets)
+from absscale_ros.core import (cube_assembly, cube_border, cube_geometry, cube_occluder,
+                               cube_split, cube_strips, lines, sides, targets)
 
 Array = npt.NDArray[np.float64]
 # The blur retry (``_smeared``): a face must ramp over this share of the band, and alike on
@@ -76,6 +78,12 @@ class CubeConfig:
     :param split_canny: (low, high) Canny thresholds on the work image of that cut's edges.
     :param split_min_depth_px: smallest depth of a concave corner of a region's outline the
         cut goes along a side from, work-image px.
+    :param occluder_reach: a face side is a post's edge (``cube_occluder``: its corners are
+        left out) when its edge runs on from this to this fraction of its length past both
+        its ends, with the side's outside colour beyond it ...
+    :param occluder_min_frac: ... on this fraction of the points read there ...
+    :param occluder_max_tilt_deg: ... and it lies within this angle of the image's vertical
+        (0: no side is looked at).
     :param small_cube_frac: a cube the sharp pass poses whose area is under this fraction of
         the paper's smallest (``min_area_frac``) is the cube in view, too far away, for
         ``cube_track`` to follow (0: never). Under the paper's area at all, the frame's
@@ -113,6 +121,9 @@ class CubeConfig:
     split_regions: bool = True
     split_canny: tuple[float, float] = (40.0, 80.0)
     split_min_depth_px: float = 3.0
+    occluder_reach: tuple[float, float] = (0.04, 0.2)
+    occluder_min_frac: float = 0.6
+    occluder_max_tilt_deg: float = 20.0
     small_cube_frac: float = 0.8
     track_full_every: int = 10
     track_margin_frac: float = 0.5
@@ -133,6 +144,10 @@ class CubeConfig:
                              f'got {self.split_canny}')
         if self.split_min_depth_px <= 0.0:
             raise ValueError(f'split_min_depth_px must be > 0, got {self.split_min_depth_px}')
+        if not (0.0 <= self.occluder_reach[0] < self.occluder_reach[1] and
+                0.0 < self.occluder_min_frac <= 1.0 and 0.0 <= self.occluder_max_tilt_deg < 90.0):
+            raise ValueError('need 0 <= occluder_reach[0] < occluder_reach[1], occluder_min_frac '
+                             'in (0, 1] and occluder_max_tilt_deg in [0, 90)')
         if not 0.0 <= self.small_cube_frac <= 1.0:  # over 1: cubes the paper keeps dropped
             raise ValueError(f'small_cube_frac must be in [0, 1], got {self.small_cube_frac}')
         if self.track_full_every < 1 or self.track_margin_frac < 0.0 or \
@@ -156,7 +171,10 @@ class Face:
     ``runs_on`` for a strip that is no evidence for a cube pose (its colour goes on past its
     side, it tapers to nothing, or it lies between two faces in the blur retry); ``cut``: the
     side along the image border of a face the border cuts (``_border_side``: that side's line
-    is the border's, its two corners are no cube vertices), -1 for none.
+    is the border's, its two corners are no cube vertices), or along a post's edge in front
+    (``cube_occluder``), -1 for none; ``outside``: the
+    corner beyond the image border of a face the border cuts across it (``cube_border``: no
+    cube vertex, and the face poses nothing), -1 for none.
     """
 
     colour: str
@@ -166,6 +184,7 @@ class Face:
     thin: bool = False
     runs_on: bool = False
     cut: int = -1
+    outside: int = -1
 
 
 def colour_mask(hsv: npt.NDArray[np.uint8], hue_deg: tuple[float, float], cfg: CubeConfig
@@ -202,12 +221,15 @@ def colour_masks(hsv: npt.NDArray[np.uint8], cfg: CubeConfig
 
 def _face_quads(mask: npt.NDArray[np.uint8], cfg: CubeConfig, scale: float = 1.0,
                 failed: list[npt.NDArray[np.int32]] | None = None,
-                min_area: float | None = None
+                min_area: float | None = None,
+                borders: tuple[bool, bool, bool, bool] = (False,) * 4
                 ) -> tuple[list[tuple[Array, npt.NDArray[np.int32]]], npt.NDArray[np.uint8]]:
     """
     Return (rough quad, contour) of mask components that pass the paper's tests, and the
     opened mask; add to ``failed`` the contours of those big enough that fail the others.
-    ``min_area``: smallest face px (default: of a mask the size of the work image).
+    ``min_area``: smallest face px (default: of a mask the size of the work image);
+    ``borders``: (left, top, right, bottom) True where the mask's edge is the image border (a
+    five-sided face cut there across a corner is a quad with that corner beyond it).
     """
     kernel = np.ones((3, 3), np.uint8)
     # The paper's opening is on the full image: on a work image ``scale`` times as big, as
@@ -225,6 +247,8 @@ def _face_quads(mask: npt.NDArray[np.uint8], cfg: CubeConfig, scale: float = 1.0
         if passed is None:
             continue
         quad = lines.rough_quad(c) if passed else None
+        if quad is None and passed and any(borders):
+            quad = cube_border.border_quad(c, mask.shape[1::-1], borders)
         if quad is not None:
             out.append((quad, c))
         elif failed is not None:
@@ -307,9 +331,13 @@ def _refine_each(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array,
     """
     if not rough:
         return []
+    h, w = image_bgr.shape[:2]
     side_lines = np.concatenate([ls for _, ls, _ in rough])
     quads = np.stack([q for _, _, q in rough])  # (F, 4, 2)
+    out_corner = cube_border.outside(quads.reshape(-1, 2), w, h).reshape(-1, 4)
     ends = np.stack([quads, quads[:, NEXT]], axis=2).reshape(-1, 2, 2)  # per side its corners
+    if out_corner.any():
+        ends = cube_border.clip_ends(ends, w, h)
     n = int(np.clip(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1).max() / 3.0, 12, 48))
     if blur_band_px > 0.0:
         rough, side_lines, ends, colours = _smeared(image_bgr, rough, side_lines, ends, n,
@@ -323,11 +351,12 @@ def _refine_each(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array,
             image_bgr, side_lines, ends, (6.0, 4.0, 2.5), n,
             colours=_half_colours(image_bgr, side_lines, ends, n) if pieces else None)
     faces: list[Face | None] = []
-    h, w = image_bgr.shape[:2]
     for f, (colour, hough, quad) in enumerate(rough):
         ls, sup = refined[4 * f:4 * f + 4].copy(), supports[4 * f:4 * f + 4].copy()
         real = np.ones(4, bool)
-        cut = None if blur_band_px > 0.0 else _border_side(quad, w, h)
+        away = cube_border.outside(quad, w, h)
+        out = int(np.argmax(away)) if away.any() else -1
+        cut = None if blur_band_px > 0.0 or out >= 0 else _border_side(quad, w, h)
         if cut is not None:  # no colour step to find there: the border's own line
             ls[cut[0]], real[cut[0]] = cut[1], False
         faces.append(None)  # until it passes
@@ -341,10 +370,23 @@ def _refine_each(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array,
             continue
         if not cv2.isContourConvex(corners.astype(np.float32)):
             continue
+        if out >= 0 and not cube_border.outside(corners[out:out + 1], w, h)[0]:
+            continue  # the cut sides meet inside the image: not one corner cut off
         # Acute corners are cut by the rough outline, so allow a quarter of the longest side.
         side_px = np.hypot(*(hough_corners - hough_corners[NEXT]).T).max()
-        if np.abs(corners - hough_corners).max() > max(4.0, 0.25 * side_px):
+        seen = np.arange(4) != out
+        if np.abs(corners - hough_corners)[seen].max() > max(4.0, 0.25 * side_px):
             continue  # the refinement ran off to another edge
+        if cut is None and out < 0 and cfg.occluder_max_tilt_deg > 0.0:
+            # A post in front cuts the face along its edge: that side's corners are the post's.
+            occ = cube_occluder.occluder_sides(image_bgr, ls, corners, inside[4 * f:4 * f + 4],
+                                               outside[4 * f:4 * f + 4], cfg.min_step,
+                                               cfg.occluder_reach, cfg.occluder_min_frac,
+                                               cfg.occluder_max_tilt_deg)
+            if occ.sum() > 1:
+                continue
+            if occ.any():
+                cut = (int(np.argmax(occ)), ls[int(np.argmax(occ))])
         # A cut face poses the cube from an extrapolation: only on sharp sides (a motion
         # streak across them shifts its seen corners by pixels); smeared, it is mute.
         smeared = cut is not None and sides.ramp_widths(
@@ -352,7 +394,7 @@ def _refine_each(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array,
             6.0, inside[4 * f:4 * f + 4][real], outside[4 * f:4 * f + 4][real]).max() \
             > CUT_MAX_RAMP_PX
         faces[-1] = Face(colour, corners, ls, sup, runs_on=bool(smeared),
-                         cut=-1 if cut is None else cut[0])
+                         cut=-1 if cut is None else cut[0], outside=out)
     return faces
 
 
@@ -460,9 +502,10 @@ def _rough(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
     found = []  # (colour, rough quad, outline), full-resolution px
     items: list[tuple[str, npt.NDArray[np.int32], npt.NDArray[np.uint8], int]] = []
     min_area = _min_face_area(cfg, size[::-1])
+    borders = (box[0] == 0, box[1] == 0, box[2] == size[0], box[3] == size[1])
     for colour, mask in colour_masks(hsv, cfg).items():
         failed: list[npt.NDArray[np.int32]] = []
-        quads, opened = _face_quads(mask, cfg, scale, failed, min_area)
+        quads, opened = _face_quads(mask, cfg, scale, failed, min_area, borders)
         for quad, contour in quads:
             items.append((colour, contour, opened, len(found)))
             found.append((colour, lines.full_px(quad + origin, scale),

@@ -79,5 +79,7 @@ def test_blur_retry_takes_no_pose_from_a_strip_between_two_faces(monkeypatch):
     for det in dets:
         assert (_errors(fr, det)[:, 0] < 8.0).all()
     monkeypatch.setattr(detect_cube.cube_assembly, 'mute_sandwiched', lambda faces, _: faces)
-    wrong = [e for det in _cubes(name)[1] for e in _errors(fr, det)[:, 0] if e > 8.0]
+    # (and without the post test, which leaves these corners out too)
+    wrong = [e for det in _cubes(name, occluder_max_tilt_deg=0.0)[1]
+             for e in _errors(fr, det)[:, 0] if e > 8.0]
     assert len(wrong) >= 2

@@ -1,0 +1,67 @@
+"""Cube faces cut across a corner by the image border, and cut by a post in front."""
+from pathlib import Path
+import sys
+
+import numpy as np
+
+from absscale_ros.core import cube_border
+
+sys.path.insert(0, str(Path(__file__).parent))
+import sim_cube_frames  # noqa: E402
+
+
+def _cubes(name, **kw):
+    return sim_cube_frames.cubes('sim_cube_cut', name, **kw)
+
+
+def _off_px(fr, det):
+    """Per detected vertex: px to the nearest true vertex, seen or hidden."""
+    true = np.array([v if v is not None else [np.nan, np.nan] for v in fr['vertices_px']], float)
+    return np.array([np.nanmin(np.hypot(*(true - p).T)) for p in det.vertices_px])
+
+
+def test_top_cut_across_its_corner_by_the_border_confirms_the_cube(monkeypatch):
+    # The red top is five-sided at the left border; the purple face, cut along a side, is
+    # smeared (13 px): only the top confirms the pose on the yellow face.
+    fr, dets = _cubes('outdoor_cube_52_232.jpg')
+    assert len(dets) == 1
+    err = sim_cube_frames.errors(fr, dets[0])
+    assert len(err) == 5 and (err[:, 0] < 0.015 * err[:, 1]).all(), err
+    assert {c for c, _ in dets[0].polygons} == {'red', 'yellow', 'purple'}
+    # The top's corner beyond the border is no vertex.
+    assert (dets[0].vertices_px[:, 0] > 2.0).all()
+    # Without it, the top's far corner (where red alone shows) is lost, and its colour.
+    monkeypatch.setattr(cube_border, 'border_quad', lambda *a, **k: None)
+    dets = _cubes('outdoor_cube_52_232.jpg')[1]
+    assert all(len(d.vertices_px) < 5 and 'red' not in {c for c, _ in d.polygons}
+               for d in dets)
+
+
+def test_border_quad_of_a_five_sided_region():
+    # A square's corner cut off by the left border of a 100 x 80 work image.
+    contour = np.array([[0, 30], [0, 50], [20, 70], [50, 40], [20, 10]], np.int32)
+    quad = cube_border.border_quad(contour.reshape(-1, 1, 2), (100, 80), (True,) * 4)
+    assert quad is not None
+    np.testing.assert_allclose(quad[0], [-10.0, 40.0], atol=1e-6)  # beyond the border
+    assert sorted(map(tuple, quad[1:])) == [(20, 10), (20, 70), (50, 40)]
+    # Not where that edge of the work image is a crop's, not the image's border.
+    assert cube_border.border_quad(contour.reshape(-1, 1, 2), (100, 80),
+                                   (False, True, True, True)) is None
+
+
+def test_face_cut_by_a_post_gives_no_post_corner():
+    # A post in front cuts the yellow face along the post's edge: the face's corners there
+    # are 23-48 px from the hidden cube vertices. They are left out (on 173 no cube is left:
+    # the red face is too narrow to pose it).
+    for name in ('outdoor_cube_72_173.jpg', 'outdoor_cube_72_200.jpg'):
+        fr, dets = _cubes(name)
+        for d in dets:
+            assert _off_px(fr, d).max() < 3.0, (name, _off_px(fr, d))
+        off = [_off_px(fr, d).max() for d in _cubes(name, occluder_max_tilt_deg=0.0)[1]]
+        assert off and max(off) > 20.0  # without the post test: the post's corners
+
+
+def test_post_cut_face_completed_keeps_the_seen_vertices():
+    fr, dets = _cubes('outdoor_cube_72_200.jpg')
+    assert len(dets) == 1 and len(dets[0].vertices_px) >= 5
+    assert {c for c, _ in dets[0].polygons} == {'red', 'yellow', 'purple'}
