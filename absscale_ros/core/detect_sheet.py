@@ -508,18 +508,7 @@ def _accept_hidden(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candida
     if cfg.min_seen < 1.0:
         paths.append(_Hidden(five, lambda hyp, out: sheet_partial.finish(hyp, out, band)))
     if cfg.stub_px > 0.0:
-        K_ = K if K is not None else _guess_K(cfg.focal_frac, image_bgr.shape)
-        # (the notched regions with hypotheses of their own: a white object elsewhere in the
-        # frame would otherwise use them all up)
-        hyps = [h for rs, cap in ((regions, STUB_MAX_HYPS), (notched or [], NOTCH_MAX_HYPS))
-                for h in sheet_stub.first_hypotheses(rs, scale, K_, cfg.stub_px, cap)]
-        aspect = tuple(m.aspect for m in cfg.models())
-        paths.append(_Hidden(
-            [hyps],  # one stub sheet at most: a fallback
-            lambda hyp, out: sheet_stub.finish(hyp, out, band, K_, aspect, image_bgr=image_bgr),
-            rough_aspect=False, checked=sheet_stub.CHECKED,
-            screen=lambda hyp, out: sheet_stub.finish(
-                hyp, out, band, K_, aspect, sheet_stub.SCREEN_SLACK) is not None))
+        paths.append(_stub_path(image_bgr, regions, notched or [], scale, band, cfg, K))
     # Then the outlines the paths above did not try (only where they find nothing), the
     # hidden corner then covered by something that is neither the sheet nor its surface.
     if cfg.min_seen < 1.0:
@@ -528,19 +517,7 @@ def _accept_hidden(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candida
                              lambda hyp, out: sheet_partial.finish(hyp, out, band),
                              strict_cover=True))
     if cfg.min_seen < 1.0 and cfg.split_gap > 0.0 and split:
-        # (not merged like the masks' outlines: a rough corner a pixel off moves the hidden
-        # corner's seen fractions across ``min_seen``)
-        plain = [(r, sheet_partial.pentagon(r)) for r, _ in split]
-        pents = [lines.full_px(p, scale) for r, pent in plain
-                 for p in (pent, sheet_partial.sharp_pentagon(r, pent)) if p is not None]
-        # (narrowed after the rough tests ``_accept_partial`` applies: they see only corners,
-        # which it keeps, and most hypotheses fail them)
-        paths.append(_Hidden([[sheet_split.narrowed(h, image_bgr)
-                               for h in sheet_partial.hypotheses(p, SPLIT_SEEN * cfg.min_seen)
-                               if _rough_ok(h, False, True, image_bgr.shape, band, cfg, K, dist)]
-                              for p in pents],
-                             lambda hyp, out: sheet_split.finish(hyp, out, band, image_bgr),
-                             seen_out=True, strict_cover=True, rough_tested=True))
+        paths.append(_split_path(image_bgr, split, scale, band, cfg, K, dist))
     outside: list[list[sheet_partial.Partial]] = []
     if cfg.min_seen < 1.0 and cfg.border_corner and border and work is not None:
         outside = sheet_border.groups(border, work, cfg, scale, image_bgr.shape)
@@ -557,6 +534,45 @@ def _accept_hidden(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candida
         hyps = [h for g in five for h in g
                 if not sheet_candidates.touches_border(h.corners, image_bgr.shape, band)]
         _accept_blurred_border(image_bgr, hyps, band, cfg, K, found, dist, hidden=True)
+
+
+def _stub_path(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candidates.Region],
+               notched: list[sheet_candidates.Region], scale: float, band: float,
+               cfg: SheetConfig, K: Array | None) -> '_Hidden':
+    """The stub path (``sheet_stub``) of ``_accept_hidden``: one group of hypotheses, up to
+    ``STUB_MAX_HYPS`` from ``regions`` and ``NOTCH_MAX_HYPS`` from the ``notched`` ones."""
+    K_ = K if K is not None else _guess_K(cfg.focal_frac, image_bgr.shape)
+    # (the notched regions with hypotheses of their own: a white object elsewhere in the
+    # frame would otherwise use them all up)
+    hyps = [h for rs, cap in ((regions, STUB_MAX_HYPS), (notched, NOTCH_MAX_HYPS))
+            for h in sheet_stub.first_hypotheses(rs, scale, K_, cfg.stub_px, cap)]
+    aspect = tuple(m.aspect for m in cfg.models())
+    return _Hidden(
+        [hyps],  # one stub sheet at most: a fallback
+        lambda hyp, out: sheet_stub.finish(hyp, out, band, K_, aspect, image_bgr=image_bgr),
+        rough_aspect=False, checked=sheet_stub.CHECKED,
+        screen=lambda hyp, out: sheet_stub.finish(
+            hyp, out, band, K_, aspect, sheet_stub.SCREEN_SLACK) is not None)
+
+
+def _split_path(image_bgr: npt.NDArray[np.uint8], split: list[sheet_candidates.Region],
+                scale: float, band: float, cfg: SheetConfig, K: Array | None,
+                dist: Array | None) -> '_Hidden':
+    """The split path (``sheet_split``) of ``_accept_hidden``: the five-sided outlines of
+    regions joined with a part an occluder cut off, plain and sharp."""
+    # (not merged like the masks' outlines: a rough corner a pixel off moves the hidden
+    # corner's seen fractions across ``min_seen``)
+    plain = [(r, sheet_partial.pentagon(r)) for r, _ in split]
+    pents = [lines.full_px(p, scale) for r, pent in plain
+             for p in (pent, sheet_partial.sharp_pentagon(r, pent)) if p is not None]
+    # (narrowed after the rough tests ``_accept_partial`` applies: they see only corners,
+    # which it keeps, and most hypotheses fail them)
+    return _Hidden([[sheet_split.narrowed(h, image_bgr)
+                     for h in sheet_partial.hypotheses(p, SPLIT_SEEN * cfg.min_seen)
+                     if _rough_ok(h, False, True, image_bgr.shape, band, cfg, K, dist)]
+                    for p in pents],
+                   lambda hyp, out: sheet_split.finish(hyp, out, band, image_bgr),
+                   seen_out=True, strict_cover=True, rough_tested=True)
 
 
 def _follow_notches(found: list[Found], regions: list[sheet_candidates.Region], scale: float
