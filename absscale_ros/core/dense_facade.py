@@ -64,6 +64,16 @@ class FacadeConfig:
     enclosed_px: int = 0  # a plain pixel only with agreeing texture within this both above and
     # below, or left and right, px at full size (the sky over a roof line is not; 0: off)
 
+    def __post_init__(self) -> None:
+        # (a negative ransac_sample would score on all but that many depths, a negative
+        # occluders or enclosed_px would turn them off without a word)
+        if not 0.0 < self.near_m < self.far_m or min(self.span, self.views, self.every,
+                                                     self.trials, self.refine_stride,
+                                                     self.fill_views) < 1 or \
+                min(self.lag, self.planes, self.ransac_sample, self.occluders,
+                    self.enclosed_px) < 0 or self.window_px < 3 or self.tolerance <= 0.0:
+            raise ValueError(f'bad facade config: {self}')
+
 
 def fine_view(image_bgr: np.ndarray, camera: CameraModel) -> tuple[np.ndarray, FloatArray]:
     """The full-size keyframe as undistorted uint8 grey, and its K (plane refinement)."""

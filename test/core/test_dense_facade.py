@@ -8,6 +8,7 @@ from absscale_ros.sim import camera as simcam
 from absscale_ros.sim import render, scenes
 from keyframe_scenes import _look_at
 import numpy as np
+import pytest
 
 SWEEP = dense_sweep.SweepConfig()
 FACADE = dense_facade.FacadeConfig(enabled=True)
@@ -191,3 +192,11 @@ def test_fill_at_full_size_when_the_heights_do_not_scale_alike() -> None:
                                      (ref[:-2], [(f[:-2], T) for f, T in fine], K_fine))
     assert np.count_nonzero(tall) > 1000
     assert abs(np.count_nonzero(short) - np.count_nonzero(tall)) < 0.02 * np.count_nonzero(tall)
+
+
+@pytest.mark.parametrize('bad', [{'ransac_sample': -1}, {'occluders': -1}, {'enclosed_px': -48},
+                                 {'near_m': 200.0}, {'views': 0}, {'tolerance': 0.0}])
+def test_a_bad_facade_config_is_refused(bad: dict) -> None:
+    with pytest.raises(ValueError):
+        dense_facade.FacadeConfig(**bad)
+    dense_facade.FacadeConfig(ransac_sample=2000, occluders=3, enclosed_px=48, lag=8)
