@@ -1,11 +1,14 @@
 """The sheet detector's CPU savings keep its answers, on rendered frames."""
 from dataclasses import replace
+import json
 from pathlib import Path
 import sys
 
+import cv2
 import numpy as np
 
-from absscale_ros.core import detect_sheet, lines, sheet_candidates
+from absscale_ros.core import detect_sheet, lines, sheet_candidates, sheet_partial, sheet_split, \
+    sheet_stub
 
 sys.path.insert(0, str(Path(__file__).parent))
 import synth_targets as st  # noqa: E402
@@ -65,7 +68,6 @@ def test_hidden_paths_see_whiteness_regions_only():
 
 def _shown_per_side(image_bgr, corners, lines_, colour=None):
     """``sheet_split.shown`` as it was written before vectorising: one side at a time."""
-    from absscale_ros.core import sheet_split, sheet_stub
     h, w = image_bgr.shape[:2]
     ts = np.linspace(*sheet_split.SPAN, sheet_split.SAMPLES)
     ends = np.roll(corners, -1, axis=0)
@@ -92,9 +94,6 @@ def test_split_path_narrows_after_the_rough_tests_with_the_same_answer():
     tests, which is the same as narrowing all first, since narrowing never moves a corner;
     ``shown`` (vectorised) gives what the per-side walk gave, bit for bit.
     """
-    import cv2
-    import json
-    from absscale_ros.core import sheet_partial, sheet_split
     data = Path(__file__).parents[1] / 'data' / 'sim_frames'
     frames = {f['file']: f for f in json.loads((data / 'frames.json').read_text())['frames']}
     for name in ('indoor_paper_57o_216.jpg', 'indoor_paper_57o_252.jpg'):

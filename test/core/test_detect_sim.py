@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from absscale_ros.core import detect
+from absscale_ros.core import detect, detect_sheet, sheet_candidates
 
 DATA = Path(__file__).parents[1] / 'data' / 'sim_frames'
 FRAMES = json.loads((DATA / 'frames.json').read_text())['frames']
@@ -142,7 +142,6 @@ def test_sim_frame_small_target_rejected(fr):
 def test_sim_frame_notched_regions_pass_the_area_and_roundness_tests():
     # ``region_shape`` gives 0 for a region too small, too round or too long: not a notched
     # one even at ``notch_solidity`` 0 (every solidity), which took them all in (specks too).
-    from absscale_ros.core import detect_sheet, sheet_candidates
     img = cv2.imread(str(DATA / 'indoor_paper_61o_220.jpg'))
     cfg = detect_sheet.SheetConfig(sheet='a4', notch_solidity=0.0)
     scale = cfg.work_max_side_px / max(img.shape[:2])
