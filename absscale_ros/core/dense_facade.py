@@ -29,7 +29,11 @@ Views = tuple[Image32, list[tuple[Image32, FloatArray]], FloatArray]  # ref, (vi
 
 @dataclass(frozen=True)
 class FacadeConfig:
-    """Far sweep, plane fit and plane fill; pixel sizes at the sweep's scale."""
+    """
+    Far sweep, plane fit and plane fill; pixel sizes at the sweep's scale, but the fill
+    check's (``window_px`` there, ``enclosed_px``) at full size, where ``facade_fill`` is
+    given the full-size views (``fine``, as ``DenseFusion`` always does).
+    """
 
     enabled: bool = False  # off: no far planes
     near_m: float = 20.0  # far sweep from this depth ...
@@ -40,7 +44,7 @@ class FacadeConfig:
     views: int = 3  # far views
     every: int = 1  # sweep every this many keyframes (the others borrow nothing)
     lag: int = 3  # a keyframe gets its far planes once this many later keyframes have poses
-    window_px: int = 7  # correlation window of the far sweep, px
+    window_px: int = 7  # correlation window of the far sweep and of the fill check, px
     min_ncc: float = 0.5  # far depths matched with a smaller correlation: not fitted
     min_texture: float = 2.0  # far depths in plainer windows: not fitted
     planes: int = 4  # planes fitted at most
