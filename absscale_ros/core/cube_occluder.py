@@ -21,7 +21,7 @@ OFFSET_PX = 4.0  # either side of its line (a sharp edge ramps over 1-2 px, a sm
 
 
 def occluder_sides(image_bgr: npt.NDArray[np.uint8], side_lines: Array, corners: Array,
-                   inside: Array, outside: Array, min_step: float,
+                   outside: Array, min_step: float,
                    reach: tuple[float, float] = (0.04, 0.2), min_frac: float = 0.6,
                    max_tilt_deg: float = 20.0) -> npt.NDArray[np.bool_]:
     """
@@ -39,7 +39,7 @@ def occluder_sides(image_bgr: npt.NDArray[np.uint8], side_lines: Array, corners:
 
     :param side_lines: (4, 3) the face's side lines, normals pointing out of it.
     :param corners: (4, 2) px, corner i starting side i.
-    :param inside: (4, 3) BGR just inside each side; ``outside``: just outside.
+    :param outside: (4, 3) BGR just outside each side.
     """
     found = np.zeros(4, bool)
     a, b = corners, corners[NEXT]

@@ -379,7 +379,7 @@ def _refine_each(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array,
             continue  # the refinement ran off to another edge
         if cut is None and out < 0 and cfg.occluder_max_tilt_deg > 0.0:
             # A post in front cuts the face along its edge: that side's corners are the post's.
-            occ = cube_occluder.occluder_sides(image_bgr, ls, corners, inside[4 * f:4 * f + 4],
+            occ = cube_occluder.occluder_sides(image_bgr, ls, corners,
                                                outside[4 * f:4 * f + 4], cfg.min_step,
                                                cfg.occluder_reach, cfg.occluder_min_frac,
                                                cfg.occluder_max_tilt_deg)
