@@ -25,7 +25,8 @@ def velocity_change(centres: FloatArray, stamps_ns: npt.NDArray[np.int64]) -> fl
     :param centres: (3, 3) camera centres, oldest first, any unit.
     :param stamps_ns: (3,) their stamps, increasing.
     """
-    dt = np.diff(np.asarray(stamps_ns, np.float64)) * 1e-9
+    # Differences in int64 first: float64 holds an epoch stamp in ns only to ~256 ns.
+    dt = np.diff(np.asarray(stamps_ns, np.int64)).astype(np.float64) * 1e-9
     v = np.diff(np.asarray(centres, np.float64), axis=0) / dt[:, None]
     fastest = max(float(np.linalg.norm(v[0])), float(np.linalg.norm(v[1])), 1e-300)
     return float(np.linalg.norm(v[1] - v[0])) / fastest

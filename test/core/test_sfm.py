@@ -303,3 +303,11 @@ def test_pose_similarity_fixes_the_roll_that_a_straight_path_leaves_open() -> No
     assert roll_err[1] < 1e-6 < 0.1 < roll_err[0]
     with pytest.raises(errors.DegenerateGeometryError):
         align.pose_similarity(T_src[:2], T_dst[:2])
+
+
+def test_velocity_change_of_epoch_stamps_a_nanosecond_apart(outdoor_orbit) -> None:
+    # float64 holds an epoch stamp in ns only to ~256 ns: the steps are taken in int64.
+    centres = outdoor_orbit.T_world_cams[:3, :3, 3]
+    near = aliasing.velocity_change(centres, np.array([0, 1, 2], np.int64))
+    epoch = aliasing.velocity_change(centres, 10**18 + np.array([0, 1, 2], np.int64))
+    assert np.isfinite(epoch) and epoch == pytest.approx(near)
