@@ -187,8 +187,7 @@ class Candidates:
     @property
     def regions(self) -> list[Region]:
         """Every large ``plausible`` region of the masks searched so far, whitest first."""
-        order = np.argsort(-np.array(self._whites), kind='stable')
-        return [self._regions[i] for i in order]  # whitest first: where a sheet is likeliest
+        return _whitest_first(self._regions, self._whites)  # where a sheet is likeliest
 
     @property
     def white_regions(self) -> list[Region]:
@@ -197,8 +196,8 @@ class Candidates:
         and unseen bags and the SmartDoc frames no sheet with a hidden corner came from a
         colour-edge region, whose hypotheses cost about a fifth of a frame without a sheet.
         """
-        order = np.argsort(-np.array(self._whites[:self._white_count]), kind='stable')
-        return [self._regions[i] for i in order]
+        return _whitest_first(self._regions[:self._white_count],
+                              self._whites[:self._white_count])
 
     def _add(self, masks_: list[npt.NDArray[np.uint8]], first: int) -> None:
         work_bgr, cfg, quads = self.work_bgr, self.cfg, self.quads
@@ -266,10 +265,9 @@ class Candidates:
         61: 0.62-0.69). Their five-sided outlines would be a sheet's hull cut by a chord
         across the box, so they are only tried as a stub (``sheet_stub``).
         """
-        whites = [plausible(self.work_bgr, c, self.cfg) for c, _ in self._notched]
-        order = np.argsort([-w for w in whites if w is not None], kind='stable')
-        kept = [r for r, w in zip(self._notched, whites) if w is not None]
-        return [kept[i] for i in order]
+        scored = [(r, plausible(self.work_bgr, r[0], self.cfg)) for r in self._notched]
+        kept = [(r, w) for r, w in scored if w is not None]
+        return _whitest_first([r for r, _ in kept], [w for _, w in kept])
 
     def _add_split(self, contour: npt.NDArray[np.int32],
                    parts: list[tuple[npt.NDArray[np.int32], tuple[int, int, int, int]]],
@@ -338,8 +336,13 @@ class Candidates:
             if self._add_split(c, self._light_parts(level, min_area), white):
                 boxes.append(box)
         self._pending = []
-        order = np.argsort(-np.array([w for _, w in self._split]), kind='stable')
-        return [(self._split[i][0], 0.0) for i in order]
+        return [(c, 0.0) for c in _whitest_first([c for c, _ in self._split],
+                                                 [w for _, w in self._split])]
+
+
+def _whitest_first(items: list, whites: list[float]) -> list:
+    """``items`` by their whiteness, whitest first (ties in their order)."""
+    return [items[i] for i in np.argsort(-np.array(whites, float), kind='stable')]
 
 
 def _cut_off_parts(contours: 'tuple[npt.NDArray[np.int32], ...]', min_area: float
