@@ -348,25 +348,25 @@ class DenseFusion:
         tree its own maps missed), which a plain or repeating patch can hide from the fill
         check.
         """
-        kf = self._frames[stamps[i]]
-        _, grey, K = kf.view
-        span, near = self.facade.occluders, []
-        for s in stamps[max(0, i - span):i + span + 1]:
-            other = self._frames[s]
-            if other is kf:
-                continue
-            T = dense_stereo.relative_pose(other.pose, kf.pose)  # other camera -> kf camera
-            for m in _measured(other):
-                pts = dense_stereo.transform(m.points_camera(stride)[0], T[:3, :3], T[:3, 3])
-                near.append(pts[(pts[:, 2] > 1e-6) & (pts[:, 2] < self.facade.near_m)])
-        return _pixels_hit(near, K, grey.shape)
+        _, grey, K = self._frames[stamps[i]].view
+        pts = self._neighbour_points(stamps, i, self.facade.occluders, stride, others_only=True)
+        return _pixels_hit([pts[(pts[:, 2] > 1e-6) & (pts[:, 2] < self.facade.near_m)]], K,
+                           grey.shape)
 
     def _nearby_points(self, stamps: list[int], i: int, stride: int = 8) -> FloatArray:
         """A thinned sample of the depth maps of keyframe ``i`` and its neighbours, in its
         camera frame (where a dominant plane is looked for)."""
+        return self._neighbour_points(stamps, i, self.sweep.span, stride)
+
+    def _neighbour_points(self, stamps: list[int], i: int, span: int, stride: int,
+                          others_only: bool = False) -> FloatArray:
+        """Every ``stride``-th point of the measured depth maps of the keyframes within
+        ``span`` of keyframe ``i`` (without its own when ``others_only``), in its camera frame."""
         kf, out = self._frames[stamps[i]], []
-        for s in stamps[max(0, i - self.sweep.span):i + self.sweep.span + 1]:
+        for s in stamps[max(0, i - span):i + span + 1]:
             other = self._frames[s]
+            if others_only and other is kf:
+                continue
             T = dense_stereo.relative_pose(other.pose, kf.pose)  # other camera -> kf camera
             for m in _measured(other):
                 out.append(dense_stereo.transform(m.points_camera(stride)[0], T[:3, :3],
