@@ -41,7 +41,8 @@ SPLIT_SEEN = 0.5
 STUB_MAX_HYPS = 8  # stub hypotheses refined per frame at most (whitest, longest sides first)
 NOTCH_MAX_HYPS = 4  # ... and of the notched regions (``Candidates.notched_regions``)
 NOTCH_INSIDE = 0.95  # of a region's outline within a hidden-corner sheet's: the part seen
-NOTCH_SLACK_PX = 2.0  # work px a region's outline may lie outside that sheet's seen outline
+NOTCH_SLACK_PX = 2.0  # work px a region's outline may lie outside that sheet's outline
+CLIP_AREA_TOL = 0.25  # a clipped seen outline's area may differ from its region's by this
 
 
 @dataclass(frozen=True)
@@ -578,30 +579,54 @@ def _split_path(image_bgr: npt.NDArray[np.uint8], split: list[sheet_candidates.R
 def _follow_notches(found: list[Found], regions: list[sheet_candidates.Region], scale: float
                     ) -> None:
     """
-    Replace the seen outline (5, 2) of each sheet found with a hidden corner by one that
-    follows the occluder's notch (``sheet_partial.notched``) of the largest region lying within
-    it (``NOTCH_INSIDE`` of its outline within ``NOTCH_SLACK_PX`` work px) over at least half
-    its area: the region seen. (Pixel precision: a box standing on a sheet's corner reaches
-    into the hull of the part seen.)
+    Replace the seen outline of each sheet found with a hidden corner by the region seen, the
+    largest region lying within the sheet's quad (``_seen_region``): the quad cut along that
+    region's outline where it runs inside the sheet (``sheet_partial.clipped``), when the
+    cut's area is the region's within ``CLIP_AREA_TOL``. Else the largest region within a
+    five-sided seen outline gives that outline's cut (``sheet_partial.notched``). (Pixel
+    precision and recall: a box standing on a sheet's corner reaches into the hull of the
+    part seen, and a chord between the sides' rough seen ends crossed the box and left seen
+    sheet out.)
     """
+    by_area = sorted(regions, key=lambda r: -cv2.contourArea(r[0]))
     for i, (score, corners, outline, vs) in enumerate(found):
-        if vs is None or isinstance(outline, tuple) or len(outline) != 5:
+        if vs is None or isinstance(outline, tuple):
             continue
-        centre = outline.mean(axis=0)
-        ls = np.array([lines.line_through(a, b, centre)
-                       for a, b in zip(outline, np.roll(outline, -1, axis=0))
-                       if np.hypot(*(b - a)) > 1e-6])  # (a placed stub's cut is a corner)
         area = cv2.contourArea(outline.astype(np.float32))
-        # (the largest first: the lowest whiteness level's, nearest the occluder's edge)
-        for contour, _ in sorted(regions, key=lambda r: -cv2.contourArea(r[0])):
-            if cv2.contourArea(contour) < 0.5 * area * scale ** 2:
+        seen = _seen_region(corners, by_area, scale, 0.5 * area)
+        if seen is not None:
+            cut = sheet_partial.clipped(corners, seen[0])
+            if cut is not None and abs(cv2.contourArea(cut.astype(np.float32)) / seen[1]
+                                       - 1.0) <= CLIP_AREA_TOL:
+                found[i] = (score, corners, cut, vs)
                 continue
-            pts = lines.full_px(sheet_stub.dense(contour.reshape(-1, 2).astype(np.float64)),
-                                scale)
-            inside = (pts @ ls[:, :2].T + ls[:, 2]).max(axis=1) <= NOTCH_SLACK_PX / scale
-            if inside.mean() >= NOTCH_INSIDE:
-                found[i] = (score, corners, sheet_partial.notched(outline, pts), vs)
-                break
+        if len(outline) != 5:
+            continue
+        seen = _seen_region(outline, by_area, scale, 0.5 * area)
+        if seen is not None:
+            found[i] = (score, corners, sheet_partial.notched(outline, seen[0]), vs)
+
+
+def _seen_region(poly: Array, regions: list[sheet_candidates.Region], scale: float,
+                 min_area: float) -> tuple[Array, float] | None:
+    """
+    Return the dense outline (M, 2) px and area px of the first of ``regions`` (work image)
+    of at least ``min_area`` px that lies within the convex polygon ``poly`` (K, 2) px
+    (``NOTCH_INSIDE`` of its outline within ``NOTCH_SLACK_PX`` work px), or None.
+    """
+    centre = poly.mean(axis=0)
+    ls = np.array([lines.line_through(a, b, centre)
+                   for a, b in zip(poly, np.roll(poly, -1, axis=0))
+                   if np.hypot(*(b - a)) > 1e-6])  # (a placed stub's cut is a corner)
+    for contour, _ in regions:
+        region_area = cv2.contourArea(contour) / scale ** 2
+        if region_area < min_area:
+            continue
+        pts = lines.full_px(sheet_stub.dense(contour.reshape(-1, 2).astype(np.float64)), scale)
+        if ((pts @ ls[:, :2].T + ls[:, 2]).max(axis=1) <= NOTCH_SLACK_PX / scale).mean() \
+                >= NOTCH_INSIDE:
+            return pts, region_area
+    return None
 
 
 def _accept_blurred_border(image_bgr: npt.NDArray[np.uint8], hyps: list[sheet_partial.Partial],

@@ -158,6 +158,54 @@ def finish(hyp: Partial, out: sides.Refined, band_px: float, hidden_slack: float
     return corners, supports, steps, inside, outside, outline
 
 
+def _deep_run(region: Array, depth: Array) -> tuple[Array, Array] | None:
+    """
+    Return the longest run of the closed outline ``region`` (M, 2) whose points lie more than
+    ``NOTCH_PX`` inside every side (``depth`` (M, S) px inside each), and its depths; None
+    when no point or every point does.
+    """
+    deep = depth.min(axis=1) > NOTCH_PX
+    if not deep.any() or deep.all():
+        return None
+    start = int(np.argmin(deep))  # (from the first point after a shallow one)
+    rolled = np.roll(deep, -start)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], rolled.astype(int), [0]])))
+    a, e = max(zip(edges[::2], edges[1::2]), key=lambda r: r[1] - r[0])
+    return np.roll(region, -start, axis=0)[a:e], np.roll(depth, -start, axis=0)[a:e]
+
+
+def clipped(corners: Array, region: Array) -> Array | None:
+    """
+    Return the seen outline of a sheet whose corner 3 is hidden: the refined quad ``corners``
+    (4, 2) with the corner cut off along the longest stretch of the seen ``region``'s outline
+    (M, 2, dense) running more than ``NOTCH_PX`` inside all four sides (the occluder's
+    edge, straight or notched), its ends moved onto the sides nearest them, then round the
+    seen corners; None when that stretch leaves and comes back on one side, or its cut keeps
+    corner 3. (The hidden-corner paths' own seen outline joins the two sides' rough seen ends
+    by a chord: on pages under a box it drew the cut over the box and left seen page out.)
+    """
+    centre = corners.mean(axis=0)
+    ls = np.array([lines.line_through(a, c, centre)
+                   for a, c in zip(corners, np.roll(corners, -1, 0))])
+    deep = _deep_run(region, -(region @ ls[:, :2].T + ls[:, 2]))
+    if deep is None:
+        return None
+    run, depth = deep
+    s0, s1 = (int(np.argmin(d)) for d in depth[[0, -1]])
+    if s0 == s1:
+        return None
+    # Round the seen corners from the side the stretch ends on to the one it starts on, in
+    # whichever direction leaves corner 3 out.
+    fwd = [(s1 + 1 + i) % 4 for i in range((s0 - s1) % 4)]
+    back = [(s1 - i) % 4 for i in range((s1 - s0) % 4)]
+    keep = [c for c in (fwd, back) if 3 not in c]
+    if len(keep) != 1:
+        return None
+    # (each end moved onto its side: where the occluder's edge meets it)
+    ends = [q - (ls[k, :2] @ q + ls[k, 2]) * ls[k, :2] for k, q in ((s0, run[0]), (s1, run[-1]))]
+    return np.vstack([ends[0], run, ends[1], corners[keep[0]]])
+
+
 def notched(poly: Array, region: Array) -> Array:
     """
     Return the seen outline ``poly`` (5, 2) (three seen corners, then the cut points on the
@@ -172,17 +220,11 @@ def notched(poly: Array, region: Array) -> Array:
     depth = -(region @ ls[:, :2].T + ls[:, 2])  # (M, 5) px inside each side's line
     # (a cut at a seen corner, a placed stub's, adds no side)
     depth[:, np.hypot(*(np.roll(poly, -1, 0) - poly).T) < 1e-6] = np.inf
-    deep = depth.min(axis=1) > NOTCH_PX
-    if not deep.any() or deep.all():
+    deep = _deep_run(region, depth)
+    if deep is None:
         return poly
-    # The longest run of deep points along the closed outline, from its first point after a
-    # shallow one.
-    start = int(np.argmin(deep))
-    rolled = np.roll(deep, -start)
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], rolled.astype(int), [0]])))
-    a, e = max(zip(edges[::2], edges[1::2]), key=lambda r: r[1] - r[0])
-    run = np.roll(region, -start, axis=0)[a:e]
-    if (np.argmin(np.roll(depth, -start, axis=0)[[a, e - 1]], axis=1) != 3).any():
+    run, depth = deep
+    if (np.argmin(depth[[0, -1]], axis=1) != 3).any():
         return poly
     if np.hypot(*(run[0] - poly[3])) > np.hypot(*(run[-1] - poly[3])):
         run = run[::-1]  # from the cut on side 2 to the one on side 3
