@@ -150,8 +150,10 @@ def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks:
             ids[v] = targets.cube_vertex_id(int(m), k)
     score = float(np.mean([f.supports.mean() for f in faces]))
     # A strip's ends follow the cube's edges where a believed pose puts them.
+    # A face joined across a post in front (``Face.seen``) shows its pieces only.
     polygons = tuple((f.colour, cube_geometry.complete_strip(*proj, f.corners_px)
-                      if f.thin and proj is not None else f.corners_px) for f in faces)
+                      if f.thin and proj is not None else f.corners_px) for f in faces
+                     if not f.seen) + tuple((f.colour, p) for f in faces for p in f.seen)
     return targets.TargetDetection(
         target_type='cube', name='cube', vertices_px=vertices, vertex_ids=ids,
         edges=np.array(sorted(edges), dtype=np.int64).reshape(-1, 2), polygons=polygons,

@@ -8,11 +8,20 @@ from a cube edge is that it runs on past both ends of the side, with the post's 
 the outside, where a cube edge stops at a vertex: past one end at least lie the ground or
 another face on both sides of its line. Such a side is treated as the image border's cut
 (``Face.cut``): its corners are left out, and the face poses the cube only completed from
-its other sides (``cube_geometry.complete_cut``).
+its other sides (``cube_geometry.complete_cut``). A post across the middle of a face splits
+it into two such pieces, joined back into the face (``join_pieces``).
 """
+import dataclasses
+from typing import TYPE_CHECKING
+
 import cv2
 import numpy as np
 import numpy.typing as npt
+
+from absscale_ros.core import lines
+
+if TYPE_CHECKING:
+    from absscale_ros.core.detect_cube import Face
 
 Array = npt.NDArray[np.float64]
 NEXT = [1, 2, 3, 0]
@@ -74,3 +83,65 @@ def occluder_sides(image_bgr: npt.NDArray[np.uint8], side_lines: Array, corners:
                              (np.linalg.norm(med_out - o, axis=1) <
                               np.linalg.norm(med_in - o, axis=1))).all())
     return found
+
+
+def join_pieces(faces: list['Face'], tol_frac: float, max_aspect: float) -> list['Face']:
+    """
+    Return ``faces`` with the two pieces of a face that a post splits joined into one.
+
+    A post across the middle of a face leaves two pieces of its colour, at least one cut
+    along the post's edge (``Face.cut``), facing each other across the gap: the face's top
+    and bottom sides go on straight through the post, so each piece's near corners lie on the
+    lines through the two pieces' far corners (within ``tol_frac`` of that line's length). The
+    joined face is the whole face: its four corners are the pieces' far ones, all cube
+    vertices (each piece alone is a cut face, posed only by extrapolation).
+    """
+    out = list(faces)
+    used: set[int] = set()
+    for a, fa in enumerate(faces):
+        if fa.cut < 0 or fa.thin or a in used:
+            continue
+        ca = fa.corners_px.mean(axis=0)
+        for b, fb in enumerate(faces):
+            if b == a or b in used or fb.thin or fb.colour != fa.colour or fb.outside >= 0:
+                continue
+            # b's side facing a: its own cut, else the one a lies farthest beyond
+            d = fb.cut if fb.cut >= 0 else int(np.argmax(fb.lines[:, :2] @ ca + fb.lines[:, 2]))
+            joined = _joined(fa, fa.cut, fb, d, tol_frac, max_aspect)
+            if joined is not None:
+                out[a], out[b] = joined, None
+                used |= {a, b}
+                break
+    return [f for f in out if f is not None]
+
+
+def _joined(fa: 'Face', c: int, fb: 'Face', d: int, tol_frac: float, max_aspect: float
+            ) -> 'Face | None':
+    """The face of pieces ``fa`` (cut along side ``c``) and ``fb`` (facing it with side ``d``)."""
+    pa, pb = fa.corners_px, fb.corners_px
+    # a's near corners c, c+1 beyond b's facing side and b's beyond a's cut: a gap between
+    for p, line in ((pb[[d, NEXT[d]]], fa.lines[c]), (pa[[c, NEXT[c]]], fb.lines[d])):
+        if (p @ line[:2] + line[2] <= 0.0).any():
+            return None
+    a2, a3, b2, b3 = pa[(c + 2) % 4], pa[(c + 3) % 4], pb[(d + 2) % 4], pb[(d + 3) % 4]
+    corners = np.array([a2, a3, b2, b3])
+    centre = corners.mean(axis=0)
+    side = [lines.line_through(corners[i], corners[NEXT[i]], centre) for i in range(4)]
+    # A face seen from beside is no wider than tall (a post is narrower than the face): two
+    # objects of the colour far apart are no face.
+    height = max(np.hypot(*(a3 - a2)), np.hypot(*(b3 - b2)))
+    if max(np.hypot(*(b2 - a3)), np.hypot(*(a2 - b3))) > max_aspect * height:
+        return None
+    # the near corners on the top (a3 .. b2) and bottom (b3 .. a2) lines
+    tol = max(2.0, tol_frac * height)
+    for line, near in ((side[1], (pa[c], pb[(d + 1) % 4])), (side[3], (pa[(c + 1) % 4], pb[d]))):
+        if max(abs(line[:2] @ n + line[2]) for n in near) > tol:
+            return None
+    if not cv2.isContourConvex(corners.astype(np.float32)):
+        return None
+    ls = np.array([fa.lines[(c + 2) % 4], side[1], fb.lines[(d + 2) % 4], side[3]])
+    sup = np.array([fa.supports[(c + 2) % 4], min(fa.supports[(c + 3) % 4],
+                    fb.supports[(d + 1) % 4]), fb.supports[(d + 2) % 4],
+                    min(fb.supports[(d + 3) % 4], fa.supports[(c + 1) % 4])])
+    return dataclasses.replace(fa, corners_px=corners, lines=ls, supports=sup, cut=-1,
+                               runs_on=fa.runs_on and fb.runs_on, seen=(pa, pb))

@@ -12,9 +12,10 @@ meet exactly. Faces sharing an edge form one cube. A face the image border cuts 
 side keeps its other sides and the corners between them; sharp, it also poses the cube,
 completed from its whole side (``cube_geometry.complete_cut``); so does a face a post in front
 cuts along its edge (``cube_occluder``), and a face the border cuts across a corner keeps its
-seen corners (``cube_border``). When no cube is found, the regions that fail the tests or the
-refinement are cut into faces (``cube_split``: a face joined in the mask with a box of its
-own colour) and the cube looked for again.
+seen corners (``cube_border``); two pieces of a face a post splits are joined into it. When
+no cube is found, the regions that fail the tests or the refinement are cut into faces
+(``cube_split``: a face joined in the mask with a box of its own colour) and the cube looked
+for again.
 """
 from dataclasses import dataclass
 
@@ -84,6 +85,12 @@ class CubeConfig:
     :param occluder_min_frac: ... on this fraction of the points read there ...
     :param occluder_max_tilt_deg: ... and it lies within this angle of the image's vertical
         (0: no side is looked at).
+    :param occluder_join_frac: two pieces of one colour, one cut along a post's edge, facing
+        each other across it, are one face split by the post (``cube_occluder.join_pieces``)
+        when their near corners lie within this fraction of the face's height (2 px at
+        least) of the lines through their far corners (0: never joined) ...
+    :param occluder_join_aspect: ... and the joined face is at most this many times as wide
+        as tall (a face seen from beside: not two objects of its colour far apart).
     :param small_cube_frac: a cube the sharp pass poses whose area is under this fraction of
         the paper's smallest (``min_area_frac``) is the cube in view, too far away, for
         ``cube_track`` to follow (0: never). Under the paper's area at all, the frame's
@@ -124,6 +131,8 @@ class CubeConfig:
     occluder_reach: tuple[float, float] = (0.04, 0.2)
     occluder_min_frac: float = 0.6
     occluder_max_tilt_deg: float = 20.0
+    occluder_join_frac: float = 0.04
+    occluder_join_aspect: float = 1.5
     small_cube_frac: float = 0.8
     track_full_every: int = 10
     track_margin_frac: float = 0.5
@@ -148,6 +157,8 @@ class CubeConfig:
                 0.0 < self.occluder_min_frac <= 1.0 and 0.0 <= self.occluder_max_tilt_deg < 90.0):
             raise ValueError('need 0 <= occluder_reach[0] < occluder_reach[1], occluder_min_frac '
                              'in (0, 1] and occluder_max_tilt_deg in [0, 90)')
+        if self.occluder_join_frac < 0.0 or self.occluder_join_aspect <= 0.0:
+            raise ValueError('need occluder_join_frac >= 0 and occluder_join_aspect > 0')
         if not 0.0 <= self.small_cube_frac <= 1.0:  # over 1: cubes the paper keeps dropped
             raise ValueError(f'small_cube_frac must be in [0, 1], got {self.small_cube_frac}')
         if self.track_full_every < 1 or self.track_margin_frac < 0.0 or \
@@ -174,7 +185,9 @@ class Face:
     is the border's, its two corners are no cube vertices), or along a post's edge in front
     (``cube_occluder``), -1 for none; ``outside``: the
     corner beyond the image border of a face the border cuts across it (``cube_border``: no
-    cube vertex, and the face poses nothing), -1 for none.
+    cube vertex, and the face poses nothing), -1 for none; ``seen``: the (4, 2) outlines of
+    the pieces a face joined across a post in front shows (``cube_occluder.join_pieces``),
+    empty for a face seen whole.
     """
 
     colour: str
@@ -185,6 +198,7 @@ class Face:
     runs_on: bool = False
     cut: int = -1
     outside: int = -1
+    seen: tuple[Array, ...] = ()
 
 
 def colour_mask(hsv: npt.NDArray[np.uint8], hue_deg: tuple[float, float], cfg: CubeConfig
@@ -706,6 +720,9 @@ def _cubes(image_bgr: npt.NDArray[np.uint8], faces: list[Face], cfg: CubeConfig,
     """
     if not faces:
         return []
+    if cfg.occluder_join_frac > 0.0:
+        faces = cube_occluder.join_pieces(faces, cfg.occluder_join_frac,
+                                          cfg.occluder_join_aspect)
     faces += _strips(image_bgr, faces, cfg)
     labels = cube_assembly.cluster_corners(faces, cfg.merge_frac)
     if blurred:

@@ -65,3 +65,18 @@ def test_post_cut_face_completed_keeps_the_seen_vertices():
     fr, dets = _cubes('outdoor_cube_72_200.jpg')
     assert len(dets) == 1 and len(dets[0].vertices_px) >= 5
     assert {c for c, _ in dets[0].polygons} == {'red', 'yellow', 'purple'}
+
+
+def test_face_split_by_a_post_is_joined_from_its_pieces():
+    # The post stands across the middle of the yellow face: two pieces, each cut along one
+    # of the post's edges, each alone posing the cube only by extrapolation (which fails
+    # here). Joined, the face's four corners are its true vertices.
+    fr, dets = _cubes('outdoor_cube_72_180.jpg')
+    assert len(dets) == 1
+    err = sim_cube_frames.errors(fr, dets[0])
+    assert len(err) == 4 and (err[:, 0] < 0.01 * err[:, 1]).all(), err
+    # The face's outline is its two pieces: the post between them is no face pixel.
+    yellow = [p for c, p in dets[0].polygons if c == 'yellow']
+    assert len(yellow) == 2 and max(p[:, 0].min() for p in yellow) - \
+        min(p[:, 0].max() for p in yellow) > 40.0
+    assert not _cubes('outdoor_cube_72_180.jpg', occluder_join_frac=0.0)[1]
