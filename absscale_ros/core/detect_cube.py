@@ -24,7 +24,7 @@ import numpy as np
 import numpy.typing as npt
 
 from absscale_ros.core import (cube_assembly, cube_border, cube_geometry, cube_occluder,
-                               cube_split, cube_strips, lines, sides, targets)
+                               cube_prune, cube_split, cube_strips, lines, sides, targets)
 
 Array = npt.NDArray[np.float64]
 # The blur retry (``_smeared``): a face must ramp over this share of the band, and alike on
@@ -353,27 +353,40 @@ def _refine_each(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array,
     if out_corner.any():
         ends = cube_border.clip_ends(ends, w, h)
     n = int(np.clip(np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1).max() / 3.0, 12, 48))
+    colours = None
     if blur_band_px > 0.0:
         rough, side_lines, ends, colours = _smeared(image_bgr, rough, side_lines, ends, n,
                                                     blur_band_px)
         if not rough:
             return []
-        refined, supports, steps, inside, outside = sides.refine(
-            image_bgr, side_lines, ends, (4.0, 2.5), n, colours=colours, blurred=True)
+    elif pieces:
+        colours = _half_colours(image_bgr, side_lines, ends, n)
+    reals, cuts, outs = _real_sides(rough, w, h, blur_band_px > 0.0)
+    # Where the colours come from an earlier pass, a face with a colour step under
+    # ``min_step`` fails whatever its sides refine to: only the others are refined (each
+    # side's refinement is its own, so theirs are unchanged).
+    try_ = np.ones(len(rough), bool) if colours is None else cube_prune.steps_pass(
+        colours, reals, cfg.min_step)
+    rows = np.repeat(try_, 4)
+    if not try_.any():
+        return [None] * len(rough)
+    if blur_band_px > 0.0:
+        res = sides.refine(image_bgr, side_lines[rows], ends[rows], (4.0, 2.5), n,
+                           colours=(colours[0][rows], colours[1][rows]), blurred=True)
     else:
-        refined, supports, steps, inside, outside = sides.refine(
-            image_bgr, side_lines, ends, (6.0, 4.0, 2.5), n,
-            colours=_half_colours(image_bgr, side_lines, ends, n) if pieces else None)
+        res = sides.refine(image_bgr, side_lines[rows], ends[rows], (6.0, 4.0, 2.5), n,
+                           colours=None if colours is None else
+                           (colours[0][rows], colours[1][rows]))
+    refined, supports, steps, inside, outside = cube_prune.spread(res, rows)
     faces: list[Face | None] = []
     for f, (colour, hough, quad) in enumerate(rough):
-        ls, sup = refined[4 * f:4 * f + 4].copy(), supports[4 * f:4 * f + 4].copy()
-        real = np.ones(4, bool)
-        away = cube_border.outside(quad, w, h)
-        out = int(np.argmax(away)) if away.any() else -1
-        cut = None if blur_band_px > 0.0 or out >= 0 else _border_side(quad, w, h)
-        if cut is not None:  # no colour step to find there: the border's own line
-            ls[cut[0]], real[cut[0]] = cut[1], False
         faces.append(None)  # until it passes
+        if not try_[f]:
+            continue
+        ls, sup = refined[4 * f:4 * f + 4].copy(), supports[4 * f:4 * f + 4].copy()
+        out, cut, real = outs[f], cuts[f], reals[f]
+        if cut is not None:  # no colour step to find there: the border's own line
+            ls[cut[0]] = cut[1]
         if steps[4 * f:4 * f + 4][real].min() < cfg.min_step or \
                 sup[real].min() < cfg.min_support:
             continue
@@ -410,6 +423,27 @@ def _refine_each(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array,
         faces[-1] = Face(colour, corners, ls, sup, runs_on=bool(smeared),
                          cut=-1 if cut is None else cut[0], outside=out)
     return faces
+
+
+def _real_sides(rough: list[tuple[str, Array, Array]], w: int, h: int, blurred: bool
+                ) -> tuple[npt.NDArray[np.bool_], list[tuple[int, Array] | None], list[int]]:
+    """
+    Return per rough face (F, 4) True for the sides that must show a colour step (not the
+    image border's), the ``_border_side`` cut (None for none; never on ``blurred`` faces or
+    faces with a corner beyond the border) and the corner beyond the border (-1 for none).
+    """
+    real = np.ones((len(rough), 4), bool)
+    cuts: list[tuple[int, Array] | None] = []
+    outs: list[int] = []
+    for f, (_, _, quad) in enumerate(rough):
+        away = cube_border.outside(quad, w, h)
+        out = int(np.argmax(away)) if away.any() else -1
+        cut = None if blurred or out >= 0 else _border_side(quad, w, h)
+        if cut is not None:
+            real[f, cut[0]] = False
+        cuts.append(cut)
+        outs.append(out)
+    return real, cuts, outs
 
 
 def _half_colours(image_bgr: npt.NDArray[np.uint8], side_lines: Array, ends: Array, n: int
