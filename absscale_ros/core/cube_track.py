@@ -8,7 +8,11 @@ While the last frame showed a cube (or one too small to report: ``small_cube_fra
 (``detect_cube.detect_cubes(roi=...)``), and searches the whole frame whenever that finds
 nothing (the cube left the box, or came near its edge, or a colour region reaching the edge
 comes near it) and at least every ``track_full_every`` frames, so that a cube coming into view
-beside the tracked one is found within that many frames.
+beside the tracked one is found within that many frames. When the box shows no cube at all
+(``track_lost_wait``), the whole frame is searched at the next frame instead: such a frame
+mostly shows the cube hidden or too oblique, where a whole search (the sharp pass, then the
+split and blur retries on every region of the frame) cost the box's ~5 ms plus ~20 ms, the
+slowest frames of a video.
 """
 import numpy as np
 import numpy.typing as npt
@@ -20,8 +24,9 @@ Array = npt.NDArray[np.float64]
 
 class CubeTracker:
     """
-    ``detect_cube.detect_cubes`` with a search box kept from frame to frame; ``box_frames`` and
-    ``whole_frames`` count the frames settled in the box and those searched whole.
+    ``detect_cube.detect_cubes`` with a search box kept from frame to frame; ``box_frames``,
+    ``whole_frames`` and ``lost_frames`` count the frames settled in the box, those searched
+    whole and those whose box showed no cube (``track_lost_wait``: not searched whole).
     """
 
     def __init__(self, cfg: detect_cube.CubeConfig) -> None:
@@ -29,7 +34,7 @@ class CubeTracker:
         self._box: tuple[int, int, int, int] | None = None  # full px, x0 y0 x1 y1
         self._shape: tuple[int, ...] = ()  # (H, W) of the frame the box was found in
         self._since_full = 0
-        self.box_frames = self.whole_frames = 0
+        self.box_frames = self.whole_frames = self.lost_frames = 0
 
     def detect(self, image_bgr: npt.NDArray[np.uint8], K: Array | None = None,
                half: npt.NDArray[np.uint8] | None = None) -> list[targets.TargetDetection]:
@@ -39,11 +44,18 @@ class CubeTracker:
         if image_bgr.shape[:2] != self._shape:  # a new resolution: the box is of another frame
             self._box, self._shape = None, image_bgr.shape[:2]
         if self._box is not None and self._since_full + 1 < cfg.track_full_every:
-            out = detect_cube.detect_cubes(image_bgr, cfg, K, half, self._box, small)
+            posed: list[targets.TargetDetection] = []
+            out = detect_cube.detect_cubes(image_bgr, cfg, K, half, self._box, small, posed)
             if out or small:
                 self._since_full += 1
                 self.box_frames += 1
                 self._box = self._search_box(out or small, image_bgr.shape)
+                return out
+            if not posed and cfg.track_lost_wait:
+                # No cube in the box at all: lost, not moved out of it (on the tuning bags the
+                # whole frame then found one in 1 of 31 frames): the next frame searches whole.
+                self._box = None
+                self.lost_frames += 1
                 return out
         out = detect_cube.detect_cubes(image_bgr, cfg, K, half, small=small)
         self._since_full = 0

@@ -102,6 +102,9 @@ class CubeConfig:
         side each way ...
     :param track_margin_px: ... and by this many px more (the motion of one frame).
     :param track_max_area_frac: a box larger than this fraction of the frame: the whole frame.
+    :param track_lost_wait: when the box shows no cube at all (none posed, of any size or
+        place), the whole frame is searched at the next frame instead of this one: the cube
+        was lost (hidden, too oblique) far more often than it left the box in one frame.
     """
 
     hue_red_deg: tuple[float, float] = (340.0, 20.0)
@@ -138,6 +141,7 @@ class CubeConfig:
     track_margin_frac: float = 0.5
     track_margin_px: float = 40.0
     track_max_area_frac: float = 0.5
+    track_lost_wait: bool = True
 
     def __post_init__(self) -> None:
         for name in ('hue_red_deg', 'hue_yellow_deg', 'hue_purple_deg'):
@@ -668,7 +672,8 @@ def _strips(image_bgr: npt.NDArray[np.uint8], faces: list[Face], cfg: CubeConfig
 def detect_cubes(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
                  K: Array | None = None, half: npt.NDArray[np.uint8] | None = None,
                  roi: tuple[int, int, int, int] | None = None,
-                 small: list[targets.TargetDetection] | None = None
+                 small: list[targets.TargetDetection] | None = None,
+                 posed: list[targets.TargetDetection] | None = None
                  ) -> list[targets.TargetDetection]:
     """
     Find tri-colour cubes in a BGR image.
@@ -682,6 +687,8 @@ def detect_cubes(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
         ``cube_track`` then searches the whole frame.
     :param small: when nothing is found but cubes too small (``small_cube_frac``), they are
         added here (for ``cube_track``: the cube in view, too far away).
+    :param posed: every cube posed is added here, whether returned or not (under the paper's
+        area, or too near the edge of ``roi``).
     :returns: one detection per cube, with vertices, ids (see ``targets``), edges and
         per-face polygons.
     """
@@ -690,12 +697,14 @@ def detect_cubes(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
                                     for f in cfg.focal_fracs]
     refined = _refine_each(image_bgr, rough, cfg)
     faces = [f for f in refined if f is not None]
-    posed: list[tuple[targets.TargetDetection, float]] = []
-    out = _cubes(image_bgr, list(faces), cfg, Ks, small=posed)
-    if posed and not out:
+    under: list[tuple[targets.TargetDetection, float]] = []
+    out = _cubes(image_bgr, list(faces), cfg, Ks, small=under)
+    if posed is not None:
+        posed += [d for d, _ in under]
+    if under and not out:
         # The cube in view is posed, but under the paper's area: the retries would find it
         # again. Far under it, it is the one for ``cube_track`` to follow.
-        tiny = [d for d, a in posed if a < cfg.small_cube_frac]
+        tiny = [d for d, a in under if a < cfg.small_cube_frac]
         if tiny and small is not None and (roi is None or all(
                 _inside(d, roi, regions.clipped, image_bgr.shape, cfg) for d in tiny)):
             small += tiny
@@ -717,6 +726,8 @@ def detect_cubes(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
             # 14-35 px streak ramps 7-17 px): a wider band only reaches other edges farther off.
             break
         out = _cubes(image_bgr, [f for f in kept if f is not None], cfg, Ks, True)
+    if posed is not None:
+        posed += out
     if roi is not None and not all(_inside(d, roi, regions.clipped, image_bgr.shape, cfg)
                                    for d in out):
         return []

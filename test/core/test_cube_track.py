@@ -1,4 +1,5 @@
 """Cube detection frame after frame (``cube_track``) on the outdoor sample bag's frames."""
+from dataclasses import replace
 import json
 from pathlib import Path
 
@@ -12,6 +13,7 @@ BAG = Path(__file__).parents[2] / 'bags' / 'outdoor_cube_sample.mcap'
 CFG = detect_cube.CubeConfig()
 SMALL = 20  # the cube at 0.29 % of the image: posed, under the paper's 0.5 %
 SEEN = range(92, 140)  # the cube seen in every frame
+LOST = 83  # the cube face-on, its top 3 px: no cube posed
 
 
 @pytest.fixture(scope='module')
@@ -20,7 +22,7 @@ def frames() -> tuple[dict[int, np.ndarray], np.ndarray, dict]:
     out = {}
     with bagio.open_bag(str(BAG)) as reader:
         for k, raw in enumerate(reader.messages([gt['bag']['image_topic']])):
-            if k == SMALL or k in SEEN:
+            if k in (SMALL, LOST) or k in SEEN:
                 out[k] = conversions.compressed_msg_to_bgr(reader.deserialize(raw))
     return out, np.array(gt['camera']['K'], float), gt
 
@@ -94,3 +96,19 @@ def test_resolution_change_drops_the_box(frames) -> None:
     assert len(tracker.detect(third)) == 1
     with pytest.raises(ValueError):
         detect_cube.CubeConfig(small_cube_frac=1.5)
+
+
+def test_box_showing_no_cube_waits_for_the_next_frame(frames) -> None:
+    """Frame 83 shows the cube face-on with a 3 px top: nothing is posed in the box around
+    frame 120's cube, nor in the whole frame. The tracker drops the box without searching the
+    whole frame (``track_lost_wait``); the next frame is searched whole."""
+    images, K, _ = frames
+    assert detect_cube.detect_cubes(images[LOST], CFG, K) == []
+    for wait in (True, False):
+        cfg = replace(CFG, track_lost_wait=wait)
+        tracker = cube_track.CubeTracker(cfg)
+        assert len(tracker.detect(images[120], K)) == 1 and tracker._box is not None
+        assert tracker.detect(images[LOST], K) == [] and tracker._box is None
+        assert (tracker.lost_frames, tracker.whole_frames) == ((1, 1) if wait else (0, 2))
+        assert len(tracker.detect(images[121], K)) == 1
+        assert tracker.whole_frames == (2 if wait else 3)
