@@ -128,9 +128,10 @@ def _joined(fa: 'Face', c: int, fb: 'Face', d: int, tol_frac: float, max_aspect:
     centre = corners.mean(axis=0)
     side = [lines.line_through(corners[i], corners[NEXT[i]], centre) for i in range(4)]
     # A face seen from beside is no wider than tall (a post is narrower than the face): two
-    # objects of the colour far apart are no face.
+    # objects of the colour far apart are no face. Both pieces cut along the post: it is
+    # between them (a top it splits is far wider than tall).
     height = max(np.hypot(*(a3 - a2)), np.hypot(*(b3 - b2)))
-    if max(np.hypot(*(b2 - a3)), np.hypot(*(a2 - b3))) > max_aspect * height:
+    if fb.cut < 0 and max(np.hypot(*(b2 - a3)), np.hypot(*(a2 - b3))) > max_aspect * height:
         return None
     # the near corners on the top (a3 .. b2) and bottom (b3 .. a2) lines
     tol = max(2.0, tol_frac * height)

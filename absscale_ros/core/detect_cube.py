@@ -89,8 +89,9 @@ class CubeConfig:
         each other across it, are one face split by the post (``cube_occluder.join_pieces``)
         when their near corners lie within this fraction of the face's height (2 px at
         least) of the lines through their far corners (0: never joined) ...
-    :param occluder_join_aspect: ... and the joined face is at most this many times as wide
-        as tall (a face seen from beside: not two objects of its colour far apart).
+    :param occluder_join_aspect: ... and, unless both pieces are cut along the post, the
+        joined face is at most this many times as wide as tall (a face seen from beside: not
+        two objects of its colour far apart; a top split by the post is wider).
     :param small_cube_frac: a cube the sharp pass poses whose area is under this fraction of
         the paper's smallest (``min_area_frac``) is the cube in view, too far away, for
         ``cube_track`` to follow (0: never). Under the paper's area at all, the frame's
