@@ -110,3 +110,21 @@ def test_ack_and_diagnostic_summary_round_trip() -> None:
         [conversions.diagnostic_status('scale: metric scale', 'warn', 'why', {'edges': 6})], 5)
     assert conversions.diagnostic_summary(arr) == {
         'scale: metric scale': {'level': 1, 'message': 'why', 'values': {'edges': '6'}}}
+
+
+def test_tracked_step_quaternion_is_scipys_to_the_bit() -> None:
+    # tracked_step_to_msg computes the quaternion itself (no scipy import in the frame nodes'
+    # process); the sfm's results depend on its bits, so every branch must match scipy's.
+    from absscale_ros.conversions.paths import rotation_to_quat_xyzw
+    from scipy.spatial.transform import Rotation
+    rng = np.random.default_rng(7)
+    small = Rotation.from_rotvec(rng.normal(0.0, 0.05, (2000, 3))).as_matrix()
+    half_turns = Rotation.from_rotvec(np.pi * np.eye(3) * 0.999).as_matrix()
+    matrices = np.concatenate([Rotation.random(3000, random_state=8).as_matrix(), small,
+                               half_turns])
+    branches = set()
+    for m in matrices:
+        ours = rotation_to_quat_xyzw(m)
+        assert ours == tuple(float(v) for v in Rotation.from_matrix(m).as_quat())
+        branches.add(int(np.argmax((m[0, 0], m[1, 1], m[2, 2], np.trace(m)))))
+    assert branches == {0, 1, 2, 3}
