@@ -42,6 +42,7 @@ STUB_MAX_HYPS = 8  # stub hypotheses refined per frame at most (whitest, longest
 NOTCH_MAX_HYPS = 4  # ... and of the notched regions (``Candidates.notched_regions``)
 NOTCH_INSIDE = 0.95  # of a region's outline within a hidden-corner sheet's: the part seen
 NOTCH_SLACK_PX = 2.0  # work px a region's outline may lie outside that sheet's outline
+SEEN_PARTS = 2  # parts of a sheet seen in parts (the split path's: a region and a part)
 CLIP_AREA_TOL = 0.25  # a clipped seen outline's area may differ from its region's by this
 
 
@@ -289,7 +290,8 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
         hidden = [r for r in cands.white_regions if not _whole_small(r[0], small, scale)]
         _accept_hidden(image_bgr, hidden, scale, band, cfg, K, found, dist,
                        cands.split_regions, cands.border_regions, work,
-                       [r for r in cands.notched_regions if not _whole_small(r[0], small, scale)])
+                       [r for r in cands.notched_regions if not _whole_small(r[0], small, scale)],
+                       cands.split_parts)
     found.sort(key=lambda f: -f[0])
     return [_detection(f, sheet_checks.best_model(f[1], image_bgr.shape, cfg, K)) for f in found]
 
@@ -490,7 +492,8 @@ def _accept_hidden(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candida
                    split: list[sheet_candidates.Region] | None = None,
                    border: list[sheet_candidates.Region] | None = None,
                    work: npt.NDArray[np.uint8] | None = None,
-                   notched: list[sheet_candidates.Region] | None = None) -> None:
+                   notched: list[sheet_candidates.Region] | None = None,
+                   parts: list[sheet_candidates.Region] | None = None) -> None:
     """
     The hidden-corner paths: five-sided regions (``sheet_partial``, when ``cfg.min_seen`` < 1;
     also of the ``split`` regions, a region joined with a part an occluder cut off),
@@ -525,7 +528,7 @@ def _accept_hidden(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candida
         paths.append(_Hidden(outside, lambda hyp, out: sheet_partial.finish(hyp, out, band),
                              border=True))
     _accept_partial(image_bgr, paths, band, cfg, K, found, dist=dist)
-    _follow_notches(found, regions + (notched or []), scale)
+    _follow_notches(found, regions + (notched or []), scale, parts or [])
     if not found and cfg.blur_band_frac > 0.0:
         _accept_blurred_border(image_bgr, [h for g in outside for h in g], band, cfg, K, found,
                                dist)
@@ -576,8 +579,8 @@ def _split_path(image_bgr: npt.NDArray[np.uint8], split: list[sheet_candidates.R
                    seen_out=True, strict_cover=True, rough_tested=True)
 
 
-def _follow_notches(found: list[Found], regions: list[sheet_candidates.Region], scale: float
-                    ) -> None:
+def _follow_notches(found: list[Found], regions: list[sheet_candidates.Region], scale: float,
+                    parts: list[sheet_candidates.Region]) -> None:
     """
     Replace the seen outline of each sheet found with a hidden corner by the region seen, the
     largest region lying within the sheet's quad (``_seen_region``): the quad cut along that
@@ -586,11 +589,16 @@ def _follow_notches(found: list[Found], regions: list[sheet_candidates.Region], 
     five-sided seen outline gives that outline's cut (``sheet_partial.notched``). (Pixel
     precision and recall: a box standing on a sheet's corner reaches into the hull of the
     part seen, and a chord between the sides' rough seen ends crossed the box and left seen
-    sheet out.)
+    sheet out.) A sheet seen in parts (the split path: a box across it) is outlined by
+    each part's region (``_seen_parts``; ``parts``: the split path's cut-off parts).
     """
     by_area = sorted(regions, key=lambda r: -cv2.contourArea(r[0]))
     for i, (score, corners, outline, vs) in enumerate(found):
-        if vs is None or isinstance(outline, tuple):
+        if vs is None:
+            continue
+        if isinstance(outline, tuple):
+            found[i] = (score, corners, _seen_parts(corners, by_area + parts, scale) or outline,
+                        vs)
             continue
         area = cv2.contourArea(outline.astype(np.float32))
         seen = _seen_region(corners, by_area, scale, 0.5 * area)
@@ -605,6 +613,28 @@ def _follow_notches(found: list[Found], regions: list[sheet_candidates.Region], 
         seen = _seen_region(outline, by_area, scale, 0.5 * area)
         if seen is not None:
             found[i] = (score, corners, sheet_partial.notched(outline, seen[0]), vs)
+
+
+def _seen_parts(corners: Array, regions: list[sheet_candidates.Region], scale: float
+                ) -> tuple[Array, ...]:
+    """
+    Return the outlines (``sheet_partial.snapped``) of the regions (largest first) lying
+    within the quad ``corners`` (4, 2) px (as ``_seen_region``) and not within one taken
+    already (different whiteness levels outline the same part), at most ``SEEN_PARTS``.
+    """
+    out: list[Array] = []
+    for contour, _ in regions:
+        seen = _seen_region(corners, [(contour, 0.0)], scale, 0.0)
+        if seen is None:
+            continue
+        pts = seen[0]
+        if any(cv2.pointPolygonTest(p.astype(np.float32), tuple(map(float, pts.mean(axis=0))),
+                                    False) >= 0 for p in out):
+            continue
+        out.append(sheet_partial.snapped(corners, pts))
+        if len(out) == SEEN_PARTS:
+            break
+    return tuple(out)
 
 
 def _seen_region(poly: Array, regions: list[sheet_candidates.Region], scale: float,

@@ -170,8 +170,9 @@ class Candidates:
         self._whites: list[float] = []
         self._edges_done = False
         self._split: list[tuple[npt.NDArray[np.int32], float]] = []
+        self._split_parts: list[npt.NDArray[np.int32]] = []  # the parts joined to them
         self._border: list[Region] = []
-        self._notched: list[Region] = []  # (``plausible`` only once asked for)
+        self._notched: list[tuple[Region, float]] = []  # (with their whiteness)
         self._add(white_masks(work_white), 0)
         self._white_count = len(self._regions)
 
@@ -222,7 +223,8 @@ class Candidates:
                 x, y, w, h = cv2.boundingRect(c)
                 cut = not (min(x, y) > 1 and x + w < shape[1] - 1 and y + h < shape[0] - 1)
                 if notch:
-                    self._add_notched(c, grow, i, cut)
+                    if not cut and i < QUAD_ONLY_MASK:
+                        parts = self._add_notched(c, grow, i, contours, min_area, parts)
                     continue
                 # (Colour-edge regions only serve the line mode's colour seeds: ``white_regions``.)
                 inner = not cut and i != QUAD_ONLY_MASK and (i < FREE_MASK or cfg.line_candidates)
@@ -250,11 +252,24 @@ class Candidates:
                     quads.append(quad)
 
     def _add_notched(self, contour: npt.NDArray[np.int32], grow: float, mask: int,
-                     cut: bool) -> None:
-        """Keep a region of a whiteness mask that is too concave for the other hidden-corner
-        paths (``notched_regions``)."""
-        if not cut and mask < QUAD_ONLY_MASK:
-            self._notched.append((contour, grow))
+                     contours: 'tuple[npt.NDArray[np.int32], ...]', min_area: float,
+                     parts: list[tuple[npt.NDArray[np.int32], tuple[int, int, int, int]]] | None
+                     ) -> list[tuple[npt.NDArray[np.int32], tuple[int, int, int, int]]] | None:
+        """
+        Keep a region of a whiteness mask that is too concave for the other hidden-corner
+        paths (``notched_regions``) when ``plausible``, and try it for the split path like
+        the convex ones (a box standing over a sheet's corner and its middle notches the
+        larger part seen and cuts a corner off: seed 85). Return this mask's ``parts``.
+        """
+        white = plausible(self.work_bgr, contour, self.cfg)
+        if white is None:
+            return parts
+        self._notched.append(((contour, grow), white))
+        if self.cfg.split_gap > 0.0:
+            parts = _cut_off_parts(contours, min_area) if parts is None else parts
+            if not self._add_split(contour, parts, white):
+                self._pending.append((contour, mask, white, min_area))
+        return parts
 
     @property
     def notched_regions(self) -> list[Region]:
@@ -263,11 +278,10 @@ class Candidates:
         below ``PENT_MIN_SOLIDITY`` but at least ``cfg.notch_solidity``, whitest first: a box
         standing on a sheet's corner whose own corner reaches deep into the part seen (seed
         61: 0.62-0.69). Their five-sided outlines would be a sheet's hull cut by a chord
-        across the box, so they are only tried as a stub (``sheet_stub``).
+        across the box, so they are tried as a stub (``sheet_stub``), and joined with a part
+        the box cut off (``split_regions``).
         """
-        scored = [(r, plausible(self.work_bgr, r[0], self.cfg)) for r in self._notched]
-        kept = [(r, w) for r, w in scored if w is not None]
-        return _whitest_first([r for r, _ in kept], [w for _, w in kept])
+        return _whitest_first([r for r, _ in self._notched], [w for _, w in self._notched])
 
     def _add_split(self, contour: npt.NDArray[np.int32],
                    parts: list[tuple[npt.NDArray[np.int32], tuple[int, int, int, int]]],
@@ -292,6 +306,7 @@ class Candidates:
                        for px, py in other.reshape(-1, 2))
             if gap <= self.cfg.split_gap * size:
                 self._split.append((np.vstack([contour, other]), white))
+                self._split_parts.append(other)
                 added = True
         return added
 
@@ -338,6 +353,12 @@ class Candidates:
         self._pending = []
         return [(c, 0.0) for c in _whitest_first([c for c, _ in self._split],
                                                  [w for _, w in self._split])]
+
+    @property
+    def split_parts(self) -> list[Region]:
+        """The cut-off parts ``split_regions`` joined (after that was asked for): a sheet's
+        seen outline is the union of its parts (``detect_sheet._follow_notches``)."""
+        return [(c, 0.0) for c in self._split_parts]
 
 
 def _whitest_first(items: list, whites: list[float]) -> list:

@@ -206,6 +206,33 @@ def clipped(corners: Array, region: Array) -> Array | None:
     return np.vstack([ends[0], run, ends[1], corners[keep[0]]])
 
 
+def snapped(corners: Array, region: Array) -> Array:
+    """
+    Return the outline (N, 2) px of one seen part of a sheet with the refined quad
+    ``corners`` (4, 2): its region's outline (M, 2, dense) with the points within
+    ``NOTCH_PX`` of a side (or beyond it) moved onto that side, and a corner put in
+    between two such points on neighbouring sides. (The whiteness region's outline lies a
+    work pixel or so off the sides; what runs deeper is an occluder's edge.)
+    """
+    centre = corners.mean(axis=0)
+    ls = np.array([lines.line_through(a, c, centre)
+                   for a, c in zip(corners, np.roll(corners, -1, 0))])
+    depth = -(region @ ls[:, :2].T + ls[:, 2])  # (M, 4) px inside each side's line
+    side = np.argmin(depth, axis=1)
+    near = depth[np.arange(len(region)), side] <= NOTCH_PX
+    pts = region.copy()
+    pts[near] += depth[near, side[near], None] * ls[side[near], :2]
+    out = []
+    for j, k in zip(range(len(pts)), np.roll(np.arange(len(pts)), -1)):
+        out.append(pts[j])
+        a, b = side[j], side[k]
+        if near[j] and near[k] and b == (a + 1) % 4:
+            out.append(corners[b])  # (side a ends at corner a + 1)
+        elif near[j] and near[k] and a == (b + 1) % 4:
+            out.append(corners[a])
+    return np.array(out)
+
+
 def notched(poly: Array, region: Array) -> Array:
     """
     Return the seen outline ``poly`` (5, 2) (three seen corners, then the cut points on the

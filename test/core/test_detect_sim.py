@@ -57,7 +57,9 @@ def test_sim_frame_sheet_with_a_corner_under_a_box(fr):
     found neither: the small sheet's rough outline spent its five vertices on blunted
     corners, and on 57 the box cuts the sheet into two regions. On 57/216 the part beyond the
     box is a sliver the masks' opening removes, and the side under the box, refined along
-    all of it, followed the box's foot (the session-14 detector found neither).
+    all of it, followed the box's foot (the session-14 detector found neither). On 85/210 the
+    box stands over the near corner and the middle: the larger part seen is notched (solidity
+    0.70, which kept it from the split path; the session-15 detector found no sheet).
     """
     img = cv2.imread(str(DATA / fr['file']))
     res = detect.detect(img, detect.DetectConfig(target=fr['target']), np.array(fr['K']))
@@ -83,7 +85,8 @@ def test_sim_frame_outline_of_a_sheet_under_a_box_leaves_the_box_out(fr):
     chord (then the outline's precision against the true sheet pixels was 0.72 on both).
     Seed 82 frame 162: the stub path's outline was a chord from one side across the box to
     the far corner (precision 0.84, recall 0.87 in ``bench detect``'s count); the quad cut along
-    the region seen gives 0.997 / 0.946.
+    the region seen gives 0.997 / 0.946. Seed 85 frame 210: the part seen is cut in two by
+    the box, each part outlined along its own region.
     """
     img = cv2.imread(str(DATA / fr['file']))
     res = detect.detect(img, detect.DetectConfig(target=fr['target']), np.array(fr['K']))
