@@ -784,10 +784,10 @@ def _rough_ok(hyp: sheet_partial.Partial, border: bool, rough_aspect: bool,
               dist: Array | None) -> bool:
     """``_accept_partial``'s tests of a hypothesis's rough corners: none within ``band`` of
     the image border (unless on the ``border`` path) and, with ``rough_aspect``, the aspect
-    within ``cfg.rough_aspect_tol``."""
+    (``_rough_aspect_ok``, as for a whole sheet: a small sheet's rough corner next to a
+    blunted one is a work pixel or more off)."""
     return (border or not sheet_candidates.touches_border(hyp.corners, shape, band)) and \
-        (not rough_aspect or sheet_checks.aspect_ok(hyp.corners, shape, cfg, K,
-                                                    cfg.rough_aspect_tol, dist))
+        (not rough_aspect or _rough_aspect_ok(hyp.corners, shape, band, cfg, K, dist))
 
 
 def _guess_K(focal_frac: float, shape: tuple[int, ...]) -> Array:
