@@ -125,8 +125,7 @@ def _joined(fa: 'Face', c: int, fb: 'Face', d: int, tol_frac: float, max_aspect:
             return None
     a2, a3, b2, b3 = pa[(c + 2) % 4], pa[(c + 3) % 4], pb[(d + 2) % 4], pb[(d + 3) % 4]
     corners = np.array([a2, a3, b2, b3])
-    centre = corners.mean(axis=0)
-    side = [lines.line_through(corners[i], corners[NEXT[i]], centre) for i in range(4)]
+    side = lines.side_lines(corners)
     # A face seen from beside is no wider than tall (a post is narrower than the face): two
     # objects of the colour far apart are no face. Both pieces cut along the post: it is
     # between them (a top it splits is far wider than tall).

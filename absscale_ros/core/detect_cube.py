@@ -308,8 +308,7 @@ def _hough_sides(faces: list[tuple[Array, Array]], cfg: CubeConfig) -> list[Arra
     """
     side_lines, votes = [], []  # votes: (face, side, outline points, theta guess, rho guess)
     for f, (quad, contour_px) in enumerate(faces):
-        centre = quad.mean(axis=0)
-        ls = np.array([lines.line_through(quad[i], quad[(i + 1) % 4], centre) for i in range(4)])
+        ls = lines.side_lines(quad)
         side_lines += list(ls)
         # (4, N): each outline point's distance from each side, and where along it it lies
         x, y = contour_px[:, 0], contour_px[:, 1]
@@ -663,10 +662,8 @@ def _strips(image_bgr: npt.NDArray[np.uint8], faces: list[Face], cfg: CubeConfig
     for colour, corners, support, runs_on in cube_strips.strip_faces(
             image_bgr, [f.corners_px for f in faces], [f.colour for f in faces], masks_of,
             cfg.strip_max_px):
-        centre = corners.mean(axis=0)
-        ls = np.array([lines.line_through(corners[k], corners[(k + 1) % 4], centre)
-                       for k in range(4)])
-        out.append(Face(colour, corners, ls, np.full(4, support), thin=True, runs_on=runs_on))
+        out.append(Face(colour, corners, lines.side_lines(corners), np.full(4, support),
+                        thin=True, runs_on=runs_on))
     return out
 
 

@@ -33,6 +33,17 @@ def line_through(p0: Array, p1: Array, inside: Array) -> Array:
     return np.array([a, b, c])
 
 
+def side_lines(poly: Array) -> Array:
+    """
+    Return the (K, 3) lines of a convex polygon's sides, side k from corner k to k + 1, their
+    normals pointing out (away from the corners' mean).
+
+    :param poly: (K, 2) corners px, in order around the polygon.
+    """
+    centre = poly.mean(axis=0)
+    return np.array([line_through(a, b, centre) for a, b in zip(poly, np.roll(poly, -1, axis=0))])
+
+
 def intersect(l1: Array, l2: Array) -> Array | None:
     """Return the (2,) intersection of two lines, or None when they are near parallel."""
     px = l1[1] * l2[2] - l1[2] * l2[1]

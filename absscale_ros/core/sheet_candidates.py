@@ -503,8 +503,7 @@ def offset(poly: Array, dist_px: float) -> Array | None:
     """Return a convex polygon (N, 2) with every side moved ``dist_px`` outwards, or None."""
     if dist_px == 0.0:
         return poly
-    centre = poly.mean(axis=0)
-    ls = [lines.line_through(a, b, centre) for a, b in zip(poly, np.roll(poly, -1, axis=0))]
+    ls = lines.side_lines(poly)
     for ln in ls:
         ln[2] -= dist_px
     out = [lines.intersect(ls[k - 1], ls[k]) for k in range(len(ls))]

@@ -184,9 +184,7 @@ def clipped(corners: Array, region: Array) -> Array | None:
     corner 3. (The hidden-corner paths' own seen outline joins the two sides' rough seen ends
     by a chord: on pages under a box it drew the cut over the box and left seen page out.)
     """
-    centre = corners.mean(axis=0)
-    ls = np.array([lines.line_through(a, c, centre)
-                   for a, c in zip(corners, np.roll(corners, -1, 0))])
+    ls = lines.side_lines(corners)
     deep = _deep_run(region, -(region @ ls[:, :2].T + ls[:, 2]))
     if deep is None:
         return None
@@ -214,9 +212,7 @@ def snapped(corners: Array, region: Array) -> Array:
     between two such points on neighbouring sides. (The whiteness region's outline lies a
     work pixel or so off the sides; what runs deeper is an occluder's edge.)
     """
-    centre = corners.mean(axis=0)
-    ls = np.array([lines.line_through(a, c, centre)
-                   for a, c in zip(corners, np.roll(corners, -1, 0))])
+    ls = lines.side_lines(corners)
     depth = -(region @ ls[:, :2].T + ls[:, 2])  # (M, 4) px inside each side's line
     side = np.argmin(depth, axis=1)
     near = depth[np.arange(len(region)), side] <= NOTCH_PX
@@ -242,8 +238,7 @@ def notched(poly: Array, region: Array) -> Array:
     into the sheet (a box's corner in front of it) is not outlined as sheet. (A stretch
     ending elsewhere is a corner the region's outline rounds off.)
     """
-    centre = poly.mean(axis=0)
-    ls = np.array([lines.line_through(a, c, centre) for a, c in zip(poly, np.roll(poly, -1, 0))])
+    ls = lines.side_lines(poly)
     depth = -(region @ ls[:, :2].T + ls[:, 2])  # (M, 5) px inside each side's line
     # (a cut at a seen corner, a placed stub's, adds no side)
     depth[:, np.hypot(*(np.roll(poly, -1, 0) - poly).T) < 1e-6] = np.inf

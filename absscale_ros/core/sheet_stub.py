@@ -246,8 +246,7 @@ def hypotheses(poly: Array, K: Array, stub_px: float, outline: Array | None = No
     for p in (poly, poly[::-1]):
         n = len(p)
         length = np.hypot(*(np.roll(p, -1, axis=0) - p).T)
-        centre = p.mean(axis=0)
-        ls = [lines.line_through(p[e], p[(e + 1) % n], centre) for e in range(n)]
+        ls = lines.side_lines(p)
         for j in range(n):
             k = (j + 1) % n
             if length[k] < SHORT_EDGE * length[j]:
@@ -262,7 +261,7 @@ def hypotheses(poly: Array, K: Array, stub_px: float, outline: Array | None = No
     return [h for *_, h in sorted(out, key=lambda x: (-x[0], x[1]))]
 
 
-def _hypothesis(p: Array, ls: list[Array], i: int, j: int, k: int, K: Array, stub_px: float
+def _hypothesis(p: Array, ls: Array, i: int, j: int, k: int, K: Array, stub_px: float
                 ) -> sheet_partial.Partial | None:
     """Edges ``i`` (part of side R B), ``j`` (B L), ``k`` (L T) of polygon ``p`` (lines ``ls``)."""
     n = len(p)
