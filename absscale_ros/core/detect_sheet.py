@@ -544,7 +544,9 @@ def _stub_path(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candidates.
                notched: list[sheet_candidates.Region], scale: float, band: float,
                cfg: SheetConfig, K: Array | None) -> '_Hidden':
     """The stub path (``sheet_stub``) of ``_accept_hidden``: one group of hypotheses, up to
-    ``STUB_MAX_HYPS`` from ``regions`` and ``NOTCH_MAX_HYPS`` from the ``notched`` ones."""
+    ``STUB_MAX_HYPS`` from ``regions`` and ``NOTCH_MAX_HYPS`` from the ``notched`` ones. Its
+    hidden corner must not show the surface (``strict_cover``): a wall board's corner placed
+    on the wall beside it, a wall patch between table legs, were stub sheets."""
     K_ = K if K is not None else _guess_K(cfg.focal_frac, image_bgr.shape)
     # (the notched regions with hypotheses of their own: a white object elsewhere in the
     # frame would otherwise use them all up)
@@ -554,7 +556,7 @@ def _stub_path(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candidates.
     return _Hidden(
         [hyps],  # one stub sheet at most: a fallback
         lambda hyp, out: sheet_stub.finish(hyp, out, band, K_, aspect, image_bgr=image_bgr),
-        rough_aspect=False, checked=sheet_stub.CHECKED,
+        rough_aspect=False, checked=sheet_stub.CHECKED, strict_cover=True,
         screen=lambda hyp, out: sheet_stub.finish(
             hyp, out, band, K_, aspect, sheet_stub.SCREEN_SLACK) is not None)
 
