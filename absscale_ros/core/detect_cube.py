@@ -367,25 +367,16 @@ def _refine_each(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array,
         colours = _half_colours(image_bgr, side_lines, ends, n)
     reals, cuts, outs = _real_sides(rough, w, h, blur_band_px > 0.0)
     # Where the colours come from an earlier pass, a face with a colour step under
-    # ``min_step`` fails whatever its sides refine to: only the others are refined (each
-    # side's refinement is its own, so theirs are unchanged).
-    try_ = np.ones(len(rough), bool) if colours is None else cube_prune.steps_pass(
-        colours, reals, cfg.min_step)
-    rows = np.repeat(try_, 4)
-    if not try_.any():
+    # ``min_step`` fails whatever its sides refine to: only the others are refined.
+    tried, res = cube_prune.refine(image_bgr, side_lines, ends, n, colours, reals, cfg.min_step,
+                                   blur_band_px > 0.0)
+    if not tried.any():
         return [None] * len(rough)
-    if blur_band_px > 0.0:
-        res = sides.refine(image_bgr, side_lines[rows], ends[rows], (4.0, 2.5), n,
-                           colours=(colours[0][rows], colours[1][rows]), blurred=True)
-    else:
-        res = sides.refine(image_bgr, side_lines[rows], ends[rows], (6.0, 4.0, 2.5), n,
-                           colours=None if colours is None else
-                           (colours[0][rows], colours[1][rows]))
-    refined, supports, steps, inside, outside = cube_prune.spread(res, rows)
+    refined, supports, steps, inside, outside = res
     faces: list[Face | None] = []
     for f, (colour, hough, quad) in enumerate(rough):
         faces.append(None)  # until it passes
-        if not try_[f]:
+        if not tried[f]:
             continue
         ls, sup = refined[4 * f:4 * f + 4].copy(), supports[4 * f:4 * f + 4].copy()
         out, cut, real = outs[f], cuts[f], reals[f]
