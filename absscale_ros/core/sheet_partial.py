@@ -180,9 +180,11 @@ def clipped(corners: Array, region: Array) -> Array | None:
     (4, 2) with the corner cut off along the longest stretch of the seen ``region``'s outline
     (M, 2, dense) running more than ``NOTCH_PX`` inside all four sides (the occluder's
     edge, straight or notched), its ends moved onto the sides nearest them, then round the
-    seen corners; None when that stretch leaves and comes back on one side, or its cut keeps
-    corner 3. (The hidden-corner paths' own seen outline joins the two sides' rough seen ends
-    by a chord: on pages under a box it drew the cut over the box and left seen page out.)
+    seen corners the way that leaves corner 3 out; None when that stretch leaves and comes
+    back on one side. (The hidden-corner paths' own seen outline joins the two sides' rough
+    seen ends by a chord: on pages under a box it drew the cut over the box and left seen
+    page out.) A stretch that does not end on sides 2 and 3 cuts off a part that is not the
+    region seen: ``detect_sheet._follow_notches`` refuses it by its area.
     """
     ls = lines.side_lines(corners)
     deep = _deep_run(region, -(region @ ls[:, :2].T + ls[:, 2]))
@@ -192,16 +194,14 @@ def clipped(corners: Array, region: Array) -> Array | None:
     s0, s1 = (int(np.argmin(d)) for d in depth[[0, -1]])
     if s0 == s1:
         return None
-    # Round the seen corners from the side the stretch ends on to the one it starts on, in
-    # whichever direction leaves corner 3 out.
+    # Round the seen corners from the side the stretch ends on to the one it starts on. The
+    # two ways round share no corner and hold all four: exactly one leaves corner 3 out.
     fwd = [(s1 + 1 + i) % 4 for i in range((s0 - s1) % 4)]
     back = [(s1 - i) % 4 for i in range((s1 - s0) % 4)]
-    keep = [c for c in (fwd, back) if 3 not in c]
-    if len(keep) != 1:
-        return None
+    keep = back if 3 in fwd else fwd
     # (each end moved onto its side: where the occluder's edge meets it)
     ends = [q - (ls[k, :2] @ q + ls[k, 2]) * ls[k, :2] for k, q in ((s0, run[0]), (s1, run[-1]))]
-    return np.vstack([ends[0], run, ends[1], corners[keep[0]]])
+    return np.vstack([ends[0], run, ends[1], corners[keep]])
 
 
 def snapped(corners: Array, region: Array) -> Array:

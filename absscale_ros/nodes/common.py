@@ -124,8 +124,8 @@ def one_opencv_thread(threads: int = 1) -> int:
     """
     OpenCV without its worker threads, in a process that shares two cores with other busy
     processes (a split run's three) or threads (one process's decode, sfm and SIFT workers).
-    Its pool's threads spin (sched_yield) while they wait for
-    work: in a split run of the 60 s bag that was 5-7 s of the three processes' 66-72 s of CPU
+    Its pool's threads spin (sched_yield) while they wait for work: in a split run of the
+    60 s bag that was 5-7 s of the three processes' 66-72 s of CPU
     (measured when the runner still decoded frames: runner -2.0, detector -3.2, sfm -1.6 s;
     the runner now only replays, the frame nodes' process gains most), and the other processes
     keep the second core busy anyway. Same keyframes, factor and cloud. Returns the count it
