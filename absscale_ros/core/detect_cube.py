@@ -343,7 +343,9 @@ def _refine_each(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array,
     the larger of its two halves' (along the object it was cut from, it has none).
 
     All sides of all faces go through one ``sides.refine`` call (each on its own colour step:
-    red-yellow, red-background... differ).
+    red-yellow, red-background... differ), but for faces whose colours an earlier pass
+    measured (blur retry, ``pieces``) with a step already under ``min_step``
+    (``cube_prune.refine``).
 
     :param rough: (colour, (4, 3) Hough side lines, (4, 2) rough quad px) per face.
     """
