@@ -66,8 +66,7 @@ def border_quad(contour: npt.NDArray[np.int32], size: tuple[int, int],
 
 def outside(points_px: Array, w: int, h: int) -> npt.NDArray[np.bool_]:
     """Return (N,) True for points (N, 2) px beyond the border of a ``w`` x ``h`` image."""
-    return (points_px[:, 0] < -0.5) | (points_px[:, 1] < -0.5) | \
-        (points_px[:, 0] > w - 0.5) | (points_px[:, 1] > h - 0.5)
+    return (lines.border_gaps(points_px, w, h) < 0.0).any(axis=1)
 
 
 def clip_ends(ends: Array, w: int, h: int) -> Array:

@@ -21,6 +21,16 @@ def full_px(p: npt.NDArray, scale: float) -> npt.NDArray:
     return (p + 0.5) / scale - 0.5
 
 
+def border_gaps(points_px: Array, w: int, h: int) -> Array:
+    """
+    Return (N, 4) how far points (N, 2) px lie inside the left, top, right and bottom border
+    of a ``w`` x ``h`` image (the outer edges of its outer pixels, at -0.5 and ``w`` - 0.5),
+    negative beyond it.
+    """
+    x, y = points_px[:, 0], points_px[:, 1]
+    return np.stack([x + 0.5, y + 0.5, w - 0.5 - x, h - 0.5 - y], axis=1)
+
+
 def line_through(p0: Array, p1: Array, inside: Array) -> Array:
     """Return the line through ``p0``, ``p1`` whose normal points away from ``inside``."""
     # Scalar arithmetic: called thousands of times per frame on single points.

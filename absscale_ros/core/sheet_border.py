@@ -25,16 +25,14 @@ Array = npt.NDArray[np.float64]
 
 def _border_of(p: Array, shape: tuple[int, ...], tol_px: float) -> int | None:
     """Return which border (0 left, 1 top, 2 right, 3 bottom) point ``p`` lies on, or None."""
-    h, w = shape[:2]
-    gaps = np.array([p[0] + 0.5, p[1] + 0.5, w - 0.5 - p[0], h - 0.5 - p[1]])
+    gaps = lines.border_gaps(p[None], shape[1], shape[0])[0]
     k = int(np.argmin(gaps))
     return k if gaps[k] <= tol_px else None
 
 
 def _outside(p: Array, shape: tuple[int, ...], border: int) -> bool:
     """Return True when ``p`` lies beyond ``border`` of the image."""
-    h, w = shape[:2]
-    return bool((-p[0] - 0.5, -p[1] - 0.5, p[0] - (w - 0.5), p[1] - (h - 0.5))[border] > 0.0)
+    return bool(lines.border_gaps(p[None], shape[1], shape[0])[0, border] < 0.0)
 
 
 def hypotheses(poly: Array, min_seen: float, shape: tuple[int, ...], tol_px: float
