@@ -214,11 +214,17 @@ def declare_config(node: Node, cfg: Any, prefix: str = '') -> Any:
     defaults) and return the config built from the parameters, validated by its own checks.
     """
     from dataclasses import fields, replace
+    from rclpy.parameter import Parameter
     values = {}
     for f in fields(cfg):
         default = getattr(cfg, f.name)
         name = f'{prefix}.{f.name}' if prefix else f.name
-        value = node.declare_parameter(name, list(default) if isinstance(default, tuple)
-                                       else default).value
+        if isinstance(default, tuple) and not default:
+            # rclpy types an empty list as a byte array, which then refuses a YAML list of
+            # names; the one such field (``sheet.other_sheets``) holds names.
+            value = node.declare_parameter(name, Parameter.Type.STRING_ARRAY).value or []
+        else:
+            value = node.declare_parameter(name, list(default) if isinstance(default, tuple)
+                                           else default).value
         values[f.name] = tuple(value) if isinstance(default, tuple) else value
     return replace(cfg, **values)

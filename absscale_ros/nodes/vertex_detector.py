@@ -25,7 +25,6 @@ the CPU more, is not starved; the keyframe selector places keyframes on frames i
 ``/diagnostics`` carries frames, detection rate and time per frame once a second. In step mode
 each frame is acknowledged on ``/absscale/ack`` (``common.StepAck``).
 """
-from dataclasses import fields, replace
 import time
 from typing import Any
 
@@ -35,18 +34,6 @@ from absscale_ros.nodes import common
 import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
-
-
-def _declare(node: Node, prefix: str, cfg: Any) -> Any:
-    """Declare one parameter per config field (``prefix.field``); return the config read."""
-    values = {}
-    for f in fields(cfg):
-        default = getattr(cfg, f.name)
-        param = node.declare_parameter(f'{prefix}.{f.name}',
-                                       list(default) if isinstance(default, tuple) else default)
-        value = param.value
-        values[f.name] = tuple(value) if isinstance(default, tuple) else value
-    return replace(cfg, **values)
 
 
 class VertexDetectorNode(Node):
@@ -62,8 +49,8 @@ class VertexDetectorNode(Node):
         self._last_stamp_ns: int | None = None
         self._cfg = detect.DetectConfig(
             target=target, auto_sheets=tuple(auto_sheets),
-            sheet=_declare(self, 'sheet', detect_sheet.SheetConfig()),
-            cube=_declare(self, 'cube', detect_cube.CubeConfig()))
+            sheet=common.declare_config(self, detect_sheet.SheetConfig(), 'sheet'),
+            cube=common.declare_config(self, detect_cube.CubeConfig(), 'cube'))
         # Frames come in order: the cube is looked for first where the last frame showed it.
         self._tracker = cube_track.CubeTracker(self._cfg.cube)
         in_qos = common.SENSOR if qos == 'sensor_data' else common.RELIABLE

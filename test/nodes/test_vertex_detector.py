@@ -80,3 +80,16 @@ def test_live_detector_keeps_to_its_rate(context) -> None:
     assert node.report()['frames_skipped_by_rate'] == 6
     node.destroy_node()
     helper.destroy_node()
+
+
+def test_sheet_names_list_from_parameters(context) -> None:
+    # An empty list default (sheet.other_sheets) was declared a byte array: a YAML list of
+    # names then stopped the node at startup (InvalidParameterTypeException).
+    node = VertexDetectorNode(context=context, parameter_overrides=[
+        Parameter('sheet.other_sheets', value=['a4'])])
+    assert node._cfg.sheet.other_sheets == ('a4',)
+    assert [m.name for m in node._cfg.sheet.models()][:2] == ['letter', 'a4']
+    node.destroy_node()
+    node = VertexDetectorNode(context=context)
+    assert node._cfg.sheet.other_sheets == ()
+    node.destroy_node()
