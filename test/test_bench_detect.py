@@ -85,5 +85,6 @@ def test_poly_mask_counts_pixel_centres_inside_only():
         pts = np.stack([us.ravel(), vs.ravel()], axis=1).astype(float)
         inside = bench_detect._inside(pts, quad).reshape(160, 200)
         assert np.array_equal(m, inside)
-        area = 0.5 * abs(np.cross(quad[2] - quad[0], quad[3] - quad[1]))
+        d1, d2 = quad[2] - quad[0], quad[3] - quad[1]
+        area = 0.5 * abs(d1[0] * d2[1] - d1[1] * d2[0])  # np.cross of 2-vectors is deprecated
         assert abs(int(m.sum()) - area) < 0.01 * area
