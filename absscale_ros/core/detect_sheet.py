@@ -503,7 +503,8 @@ def _accept_hidden(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candida
     ``notched`` regions, ``Candidates.notched_regions``, up to ``NOTCH_MAX_HYPS`` more). Both
     sets of hypotheses are refined in one ``_accept_partial`` call: a frame without a sheet
     tries both, and one call per pass costs about a millisecond less than two. A sheet found
-    gets the occluder's notch in its outline (``_follow_notches``); with none found, the
+    gets the region seen as its outline (``_follow_notches``; ``parts``: the split path's
+    cut-off parts, for a sheet seen in parts); with none found, the
     corner-beyond-the-border and five-sided hypotheses are retried as smeared by motion blur
     (``_accept_blurred_border``).
     """

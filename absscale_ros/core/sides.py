@@ -350,7 +350,9 @@ def refine_many(image_bgr: npt.NDArray[np.uint8], lines_: list[Array], ends: lis
     """
     ``refine_checked`` of several candidates (each its (S_c, 3) lines, (S_c, 2, 2) ends and
     profile count) in one ``refine`` call per pass, with the same results: a call costs about
-    a millisecond of numpy overhead whatever the number of sides. ``checked``: as in
+    a millisecond of numpy overhead whatever the number of sides. (Bitwise the same only when
+    the candidates share the largest profile count: zero-padded profiles change numpy's
+    pairwise summation, so the last bits can differ.) ``checked``: as in
     ``refine_checked``, or a list of one per candidate; ``screen(c, first)``: False drops
     candidate ``c`` after the first pass too; ``blurred``: see ``refine``.
     """
