@@ -389,10 +389,7 @@ def _whole_small(contour: npt.NDArray[np.int32], small: list[Array], scale: floa
     """
     pts = lines.full_px(contour.reshape(-1, 2), scale)
     for quad in small:
-        centre = quad.mean(axis=0)
-        ls = np.array([lines.line_through(a, b, centre)
-                       for a, b in zip(quad, np.roll(quad, -1, axis=0))])
-        if (pts @ ls[:, :2].T + ls[:, 2]).max() <= SMALL_INSET_PX / scale:
+        if -lines.depths_inside(pts, lines.side_lines(quad)).min() <= SMALL_INSET_PX / scale:
             return True
     return False
 
@@ -658,7 +655,7 @@ def _seen_region(poly: Array, regions: list[sheet_candidates.Region], scale: flo
         if region_area < min_area:
             continue
         pts = lines.full_px(sheet_stub.dense(contour.reshape(-1, 2).astype(np.float64)), scale)
-        if ((pts @ ls[:, :2].T + ls[:, 2]).max(axis=1) <= NOTCH_SLACK_PX / scale).mean() \
+        if (lines.depths_inside(pts, ls).min(axis=1) >= -NOTCH_SLACK_PX / scale).mean() \
                 >= NOTCH_INSIDE:
             return pts, region_area
     return None

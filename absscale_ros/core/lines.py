@@ -54,6 +54,12 @@ def side_lines(poly: Array) -> Array:
     return np.array([line_through(a, b, centre) for a, b in zip(poly, np.roll(poly, -1, axis=0))])
 
 
+def depths_inside(points: Array, side_lines_: Array) -> Array:
+    """Return (M, K) how far (px) each of ``points`` (M, 2) lies inside each of the K lines
+    ``side_lines_`` (K, 3), normals out as ``side_lines`` gives them (negative: outside)."""
+    return -(points @ side_lines_[:, :2].T + side_lines_[:, 2])
+
+
 def intersect(l1: Array, l2: Array) -> Array | None:
     """Return the (2,) intersection of two lines, or None when they are near parallel."""
     px = l1[1] * l2[2] - l1[2] * l2[1]

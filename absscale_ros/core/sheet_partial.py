@@ -187,7 +187,7 @@ def clipped(corners: Array, region: Array) -> Array | None:
     region seen: ``detect_sheet._follow_notches`` refuses it by its area.
     """
     ls = lines.side_lines(corners)
-    deep = _deep_run(region, -(region @ ls[:, :2].T + ls[:, 2]))
+    deep = _deep_run(region, lines.depths_inside(region, ls))
     if deep is None:
         return None
     run, depth = deep
@@ -213,7 +213,7 @@ def snapped(corners: Array, region: Array) -> Array:
     work pixel or so off the sides; what runs deeper is an occluder's edge.)
     """
     ls = lines.side_lines(corners)
-    depth = -(region @ ls[:, :2].T + ls[:, 2])  # (M, 4) px inside each side's line
+    depth = lines.depths_inside(region, ls)  # (M, 4)
     side = np.argmin(depth, axis=1)
     near = depth[np.arange(len(region)), side] <= NOTCH_PX
     pts = region.copy()
@@ -239,7 +239,7 @@ def notched(poly: Array, region: Array) -> Array:
     ending elsewhere is a corner the region's outline rounds off.)
     """
     ls = lines.side_lines(poly)
-    depth = -(region @ ls[:, :2].T + ls[:, 2])  # (M, 5) px inside each side's line
+    depth = lines.depths_inside(region, ls)  # (M, 5)
     # (a cut at a seen corner, a placed stub's, adds no side)
     depth[:, np.hypot(*(np.roll(poly, -1, 0) - poly).T) < 1e-6] = np.inf
     deep = _deep_run(region, depth)
