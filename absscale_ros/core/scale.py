@@ -42,8 +42,9 @@ class ScaleConfig:
     max_relative_sigma: float = 0.004
     confidence: float = 0.95  # of the reported interval
     # The vertex residuals only see noise at the target; the reconstruction's own scale drift
-    # between the target and the rest of the scene adds this much (relative, 1 sigma).
-    drift_sigma_rel: float = 0.0
+    # between the target and the rest of the scene adds this much (relative, 1 sigma; 0.003 as
+    # in every shipped config: without it the interval is the target's alone, too narrow).
+    drift_sigma_rel: float = 0.003
     # A keyframe path whose velocity changes by more than this times the speed within
     # ``path_jump_s`` has a link the SfM got wrong (a repeated texture matched a period off):
     # the map is bent there and no one factor scales it, so none is claimed (0: off).

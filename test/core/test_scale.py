@@ -111,7 +111,7 @@ def test_sheet_size_chosen_by_shape_or_refused() -> None:
 def test_drift_term_widens_sigma_and_interval() -> None:
     rng = np.random.default_rng(6)
     obj = _reconstructed('sheet', LETTER, 1.0, 0.0003, rng)
-    local = scale.estimate([obj], CFG)
+    local = scale.estimate([obj], scale.ScaleConfig(drift_sigma_rel=0.0))
     wide = scale.estimate([obj], scale.ScaleConfig(drift_sigma_rel=0.003))
     assert wide.factor == local.factor
     assert wide.sigma == pytest.approx(np.hypot(local.sigma, 0.003 * local.factor))
