@@ -395,14 +395,14 @@ def _whole_small(contour: npt.NDArray[np.int32], small: list[Array], scale: floa
 
 
 def _rough_aspect_ok(quad: Array, shape: tuple[int, ...], band: float, cfg: SheetConfig,
-                     K: Array | None, dist: Array | None) -> bool:
+                     K: Array | None, dist: Array | None, err: float | None = None) -> bool:
     """
     The aspect test of rough corners: within ``cfg.rough_aspect_tol``, or with intrinsics more
     where corners anywhere within the refinement ``band`` change the ratio more (a small
     sheet seen nearly edge-on: 35 px tall, 1.0 off at rough corners 7 px off, 0.2 % once
-    refined).
+    refined). ``err``: their ``sheet_checks.aspect_error``, when known.
     """
-    err = sheet_checks.aspect_error(quad, shape, cfg, K, dist)
+    err = sheet_checks.aspect_error(quad, shape, cfg, K, dist) if err is None else err
     cap = ROUGH_ASPECT_CAP / cfg.aspect_tol
     # (an error over the largest tolerance ``aspect_tolerance`` can return, computed as it
     # does, fails without its nine aspects: 58 % of the calls on pages under a box)
@@ -573,10 +573,10 @@ def _split_path(image_bgr: npt.NDArray[np.uint8], split: list[sheet_candidates.R
              for p in (pent, sheet_partial.sharp_pentagon(r, pent)) if p is not None]
     # (narrowed after the rough tests ``_accept_partial`` applies: they see only corners,
     # which it keeps, and most hypotheses fail them)
-    return _Hidden([[sheet_split.narrowed(h, image_bgr)
-                     for h in sheet_partial.hypotheses(p, SPLIT_SEEN * cfg.min_seen)
-                     if _rough_ok(h, False, True, image_bgr.shape, band, cfg, K, dist)]
-                    for p in pents],
+    kept = _rough_kept([sheet_partial.hypotheses(p, SPLIT_SEEN * cfg.min_seen) for p in pents],
+                       False, True, image_bgr.shape, band, cfg, K, dist)
+    narrow = iter(sheet_split.narrowed_many([h for g in kept for h in g], image_bgr))
+    return _Hidden([[next(narrow) for _ in g] for g in kept],
                    lambda hyp, out: sheet_split.finish(hyp, out, band, image_bgr),
                    seen_out=True, strict_cover=True, rough_tested=True)
 
@@ -744,9 +744,9 @@ def _accept_partial(image_bgr: npt.NDArray[np.uint8], paths: list[_Hidden], band
     """
     # A corner beyond the border has no occluder to show for the cut (tiles), except on the
     # border path, whose cut runs along the border (``sheet_border``).
-    groups = [[[h for h in group if path.rough_tested or _rough_ok(
-                    h, path.border, path.rough_aspect, image_bgr.shape, band, cfg, K, dist)]
-               for group in path.groups] for path in paths]
+    groups = [path.groups if path.rough_tested else _rough_kept(
+        path.groups, path.border, path.rough_aspect, image_bgr.shape, band, cfg, K, dist)
+        for path in paths]
     jobs = [(path, h) for path, gs in zip(paths, groups) for g in gs for h in g]
     rough = [sheet_partial.rough_sides(h) for _, h in jobs]
     refined = iter(sides.refine_many(
@@ -790,6 +790,33 @@ def _rough_ok(hyp: sheet_partial.Partial, border: bool, rough_aspect: bool,
     blunted one is a work pixel or more off)."""
     return (border or not sheet_candidates.touches_border(hyp.corners, shape, band)) and \
         (not rough_aspect or _rough_aspect_ok(hyp.corners, shape, band, cfg, K, dist))
+
+
+def _rough_kept(groups: list[list[sheet_partial.Partial]], border: bool, rough_aspect: bool,
+                shape: tuple[int, ...], band: float, cfg: SheetConfig, K: Array | None,
+                dist: Array | None) -> list[list[sheet_partial.Partial]]:
+    """The hypotheses of each group that pass ``_rough_ok``, all tested at once
+    (``_rough_oks``)."""
+    oks = iter(_rough_oks([h for g in groups for h in g], border, rough_aspect, shape, band,
+                          cfg, K, dist))
+    return [[h for h in g if next(oks)] for g in groups]
+
+
+def _rough_oks(hyps: list[sheet_partial.Partial], border: bool, rough_aspect: bool,
+               shape: tuple[int, ...], band: float, cfg: SheetConfig, K: Array | None,
+               dist: Array | None) -> list[bool]:
+    """``_rough_ok`` of many hypotheses, their aspect errors computed together (with
+    intrinsics: ``sheet_checks.aspect_errors``, bit for bit the same; on page-less outdoor
+    frames the split path tests ~90 a frame)."""
+    if K is None or not rough_aspect or len(hyps) < 2:
+        return [_rough_ok(h, border, rough_aspect, shape, band, cfg, K, dist) for h in hyps]
+    corners = np.array([h.corners for h in hyps])
+    h, w = shape[:2]
+    near = (corners.min(axis=(1, 2)) < band) | (corners[..., 0].max(axis=1) > w - 1 - band) | \
+        (corners[..., 1].max(axis=1) > h - 1 - band)  # (``touches_border``)
+    errs = sheet_checks.aspect_errors(corners, cfg, K, dist)
+    return [bool(border or not n) and _rough_aspect_ok(c, shape, band, cfg, K, dist, float(e))
+            for c, n, e in zip(corners, near, errs)]
 
 
 def _guess_K(focal_frac: float, shape: tuple[int, ...]) -> Array:

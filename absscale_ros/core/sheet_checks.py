@@ -160,6 +160,17 @@ def aspect_error(corners: Array, shape: tuple[int, ...], cfg: 'SheetConfig',
     return float(best)
 
 
+def aspect_errors(corners: Array, cfg: 'SheetConfig', K: Array, dist: Array | None = None
+                  ) -> Array:
+    """``aspect_error`` with intrinsics of many quadrilaterals (M, 4, 2) at once: (M,), bit for
+    bit its values."""
+    flat = undistort(corners.reshape(-1, 2), K, dist).reshape(-1, 4, 2)
+    with np.errstate(divide='ignore', invalid='ignore'):  # (degenerate rough corners)
+        aspects = lines.rectangle_aspects_each(flat, K)
+        # (``aspect_error``'s 0 where an aspect equals the model's is |a / m - 1| there too)
+        return np.min([np.abs(aspects / m.aspect - 1.0) for m in cfg.models()], axis=0)
+
+
 def best_model(corners: Array, shape: tuple[int, ...], cfg: 'SheetConfig', K: Array | None
                ) -> targets.SheetModel:
     """

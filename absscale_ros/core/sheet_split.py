@@ -31,31 +31,41 @@ def shown(image_bgr: npt.NDArray[np.uint8], corners: Array, lines_: Array,
     of those samples over all four sides), and (4, 2, 2) where on each side the first
     stretch showing it ends and the last one begins.
     """
+    frac, runs = shown_many(image_bgr, corners[None], lines_[None],
+                            None if colour is None else colour[None])
+    return frac[0], runs[0]
+
+
+def shown_many(image_bgr: npt.NDArray[np.uint8], corners: Array, lines_: Array,
+               colours: Array | None = None) -> tuple[Array, Array]:
+    """``shown`` of M quadrilaterals (M, 4, 2) with their (M, 4, 3) side lines (and (M, 3)
+    colours) at once, bit for bit: (M, 4) and (M, 4, 2, 2)."""
     h, w = image_bgr.shape[:2]
-    ts, ends = _TS, corners[_NEXT]
-    pts = corners[:, None] + ts[None, :, None] * (ends - corners)[:, None] \
-        - sheet_stub.INSIDE_PX * lines_[:, None, :2]
+    ts, ends = _TS, corners[:, _NEXT]
+    pts = corners[:, :, None] + ts[None, None, :, None] * (ends - corners)[:, :, None] \
+        - sheet_stub.INSIDE_PX * lines_[:, :, None, :2]
     u = np.clip(np.round(pts[..., 0]).astype(int), 0, w - 1)
     v = np.clip(np.round(pts[..., 1]).astype(int), 0, h - 1)
-    bgr = image_bgr[v, u].astype(np.float64)  # (4, SAMPLES, 3)
+    bgr = image_bgr[v, u].astype(np.float64)  # (M, 4, SAMPLES, 3)
     # (np.median and np.linalg.norm written out: the same values at a third of the cost)
-    if colour is None:
-        srt = np.sort(bgr.reshape(-1, 3), axis=0)
-        colour = (srt[(len(srt) - 1) // 2] + srt[len(srt) // 2]) / 2.0
-    d = bgr - colour
+    if colours is None:
+        srt = np.sort(bgr.reshape(len(bgr), -1, 3), axis=1)
+        n = srt.shape[1]
+        colours = (srt[:, (n - 1) // 2] + srt[:, n // 2]) / 2.0
+    d = bgr - colours[:, None, None]
     ok = np.sqrt(d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] + d[..., 2] * d[..., 2]) \
         < sheet_stub.GO_ON_CONTRAST
     # The first and the last run of samples showing the sheet (where its edges change): where
     # the first run ends and where the last begins.
-    padded = np.zeros((4, SAMPLES + 2), np.int8)
-    padded[:, 1:-1] = ok
-    change = padded[:, 1:] - padded[:, :-1]
-    first_end = np.argmax(change == -1, axis=1) - 1  # (-1 and SAMPLES where none shows)
-    last_start = np.minimum(SAMPLES - np.argmax(change[:, ::-1] == 1, axis=1), SAMPLES - 1)
-    runs = corners[:, None] + ts[np.stack([first_end, last_start], axis=1)][..., None] \
-        * (ends - corners)[:, None]
-    seen = np.count_nonzero(ok, axis=1)
-    return seen / SAMPLES, np.where(seen[:, None, None] > 0, runs, 0.0)
+    padded = np.zeros(ok.shape[:2] + (SAMPLES + 2,), np.int8)
+    padded[..., 1:-1] = ok
+    change = padded[..., 1:] - padded[..., :-1]
+    first_end = np.argmax(change == -1, axis=2) - 1  # (-1 and SAMPLES where none shows)
+    last_start = np.minimum(SAMPLES - np.argmax(change[..., ::-1] == 1, axis=2), SAMPLES - 1)
+    runs = corners[:, :, None] + ts[np.stack([first_end, last_start], axis=2)][..., None] \
+        * (ends - corners)[:, :, None]
+    seen = np.count_nonzero(ok, axis=2)
+    return seen / SAMPLES, np.where(seen[..., None, None] > 0, runs, 0.0)
 
 
 def narrowed(hyp: sheet_partial.Partial, image_bgr: npt.NDArray[np.uint8]
@@ -67,8 +77,22 @@ def narrowed(hyp: sheet_partial.Partial, image_bgr: npt.NDArray[np.uint8]
     refined along all of it, the side follows the object's foot and moves the corners at
     its ends by several pixels (seed 57, frame 200: 18 % off the sheet's aspect).
     """
-    rough, _ = sheet_partial.rough_sides(hyp)
-    frac, runs = shown(image_bgr, hyp.corners, rough)
+    return narrowed_many([hyp], image_bgr)[0]
+
+
+def narrowed_many(hyps: list[sheet_partial.Partial], image_bgr: npt.NDArray[np.uint8]
+                  ) -> list[sheet_partial.Partial]:
+    """``narrowed`` of many hypotheses, their ``shown`` measured together (bit for bit)."""
+    if not hyps:
+        return []
+    corners = np.array([h.corners for h in hyps])
+    fracs, runs_all = shown_many(image_bgr, corners,
+                                 np.array([sheet_partial.rough_sides(h)[0] for h in hyps]))
+    return [_narrowed(h, f, r) for h, f, r in zip(hyps, fracs, runs_all)]
+
+
+def _narrowed(hyp: sheet_partial.Partial, frac: Array, runs: Array) -> sheet_partial.Partial:
+    """``narrowed`` given ``shown`` of its rough sides."""
     gap = int(np.argmin(frac[:2]))
     if frac[gap] >= NARROW_SHOWN or frac[gap] < MIN_SHOWN:
         return hyp

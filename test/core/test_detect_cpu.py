@@ -7,8 +7,8 @@ import sys
 import cv2
 import numpy as np
 
-from absscale_ros.core import detect_sheet, lines, sheet_candidates, sheet_partial, sheet_split, \
-    sheet_stub
+from absscale_ros.core import detect_sheet, lines, sheet_candidates, sheet_checks, sheet_partial, \
+    sheet_split, sheet_stub
 
 sys.path.insert(0, str(Path(__file__).parent))
 import synth_targets as st  # noqa: E402
@@ -121,3 +121,36 @@ def test_split_path_narrows_after_the_rough_tests_with_the_same_answer():
                 assert want[1].tobytes() == got[1].tobytes()
         assert narrowed > 0
         assert len(detect_sheet.detect_sheets(img, cfg, K)) == 1
+
+
+def test_split_path_tests_its_hypotheses_together_with_the_same_answer():
+    """
+    The split path's rough tests (``_rough_oks``: aspect errors of all hypotheses at once)
+    and narrowing (``narrowed_many``: ``shown`` of all at once) give, bit for bit, what one
+    hypothesis at a time gives, on the page a box cuts in two (seed 57, frame 216) and with
+    lens distortion.
+    """
+    data = Path(__file__).parents[1] / 'data' / 'sim_frames'
+    frames = {f['file']: f for f in json.loads((data / 'frames.json').read_text())['frames']}
+    name = 'indoor_paper_57o_216.jpg'
+    img, K = cv2.imread(str(data / name)), np.array(frames[name]['K'])
+    cfg = detect_sheet.SheetConfig(sheet='a4', other_sheets=('letter',))
+    scale = cfg.work_max_side_px / 1280.0
+    cands = sheet_candidates.Candidates(sheet_candidates.shrink(img, scale), cfg)
+    hyps = [h for r, _ in cands.split_regions + cands.white_regions
+            for p in (sheet_partial.pentagon(r),) if p is not None
+            for h in sheet_partial.hypotheses(lines.full_px(p, scale), 0.2)]
+    band = max(6.0, 3.0 / scale)
+    for dist in (None, np.array([-0.12, 0.03, 0.0, 0.0, 0.0])):
+        one = [detect_sheet._rough_ok(h, False, True, img.shape, band, cfg, K, dist)
+               for h in hyps]
+        assert 0 < sum(one) < len(one)
+        assert detect_sheet._rough_oks(hyps, False, True, img.shape, band, cfg, K,
+                                       dist) == one
+        errs = sheet_checks.aspect_errors(np.array([h.corners for h in hyps]), cfg, K, dist)
+        assert errs.tobytes() == np.array([sheet_checks.aspect_error(
+            h.corners, img.shape, cfg, K, dist) for h in hyps]).tobytes()
+    many = sheet_split.narrowed_many(hyps, img)
+    assert sum(not np.array_equal(m.seen_ends, h.seen_ends) for m, h in zip(many, hyps)) > 0
+    for m, h in zip(many, hyps):
+        assert m.seen_ends.tobytes() == sheet_split.narrowed(h, img).seen_ends.tobytes()
