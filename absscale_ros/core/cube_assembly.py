@@ -79,8 +79,31 @@ def _posing(face: 'Face') -> bool:
         sides.min() >= MIN_POSING_ASPECT * sides.max()
 
 
+def _explained(faces: list['Face'], vertices: Array, Ks: list[Array], tol_frac: float,
+               loose_ramp_px: float) -> tuple[npt.NDArray[np.bool_], cube_geometry.Posed | None]:
+    """
+    Return ``cube_geometry.explained`` of a cube's vertices (V, 2) px by its posing faces:
+    whole ones, and cut ones completed from their seen whole side and the two sides leaving
+    it (with known intrinsics only) when sharp, or when their sides ramp over at most
+    ``loose_ramp_px`` (an extrapolation from smeared sides: asked only when the sharp poses
+    keep no vertex, which it would otherwise veto).
+    """
+    posing = [_posing(f) for f in faces]
+    completed = {f: cube_geometry.complete_cut(face.corners_px, face.lines, face.cut, Ks[0])
+                 for f, face in enumerate(faces) if face.cut >= 0 and len(Ks) == 1 and
+                 (not face.runs_on or face.ramp_px <= loose_ramp_px)}
+    completed = {f: c for f, c in completed.items()
+                 if c is not None and _posing(dataclasses.replace(faces[f], corners_px=c, cut=-1))}
+    posing = [p or f in completed for f, p in enumerate(posing)]
+    # A smeared cut face poses nothing, but its seen part still lies where a pose puts it.
+    return cube_geometry.explained(vertices, list(np.flatnonzero(posing)),
+                                   [f.corners_px for f in faces], [f.thin for f in faces],
+                                   [f.runs_on and f.cut < 0 for f in faces], Ks, tol_frac,
+                                   completed)
+
+
 def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks: list[Array],
-                   shape: tuple[int, ...], shape_tol_frac: float
+                   shape: tuple[int, ...], shape_tol_frac: float, loose_ramp_px: float = 0.0
                    ) -> targets.TargetDetection | None:
     """
     Assemble vertices (least-squares points of meeting edges), ids and edges of a cube.
@@ -89,7 +112,8 @@ def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks:
     the image border cuts adds its two corners off the border only. Vertices
     that no cube pose explains (``cube_geometry``) and corners where the image border cuts a
     face are left out, and faces left with none of their corners; None when no vertex where
-    two colours meet is left.
+    two colours meet is left. When the sharp poses leave none, cut faces whose sides ramp
+    over at most ``loose_ramp_px`` pose the cube too (``_explained``).
     """
     # (nor the two corners where the image border cuts a face: the border's, not the cube's,
     # nor a corner beyond it)
@@ -109,30 +133,21 @@ def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks:
             if w is not None and w != v:
                 edges.add((min(v, w), max(v, w)))
     vertices = np.array([lines.nearest_point(np.array(ls)) for ls in meeting])
-    posing = [_posing(f) for f in faces]
-    # A face the image border cuts poses the cube completed from its seen whole side and the
-    # two sides leaving it (with known intrinsics only).
-    completed = {f: cube_geometry.complete_cut(face.corners_px, face.lines, face.cut, Ks[0])
-                 for f, face in enumerate(faces)
-                 if face.cut >= 0 and not face.runs_on and len(Ks) == 1}
-    completed = {f: c for f, c in completed.items()
-                 if c is not None and _posing(dataclasses.replace(faces[f], corners_px=c, cut=-1))}
-    posing = [p or f in completed for f, p in enumerate(posing)]
-    # A smeared cut face poses nothing, but its seen part still lies where a pose puts it.
-    keep, proj = cube_geometry.explained(vertices, list(np.flatnonzero(posing)),
-                                         [f.corners_px for f in faces],
-                                         [f.thin for f in faces],
-                                         [f.runs_on and f.cut < 0 for f in faces], Ks,
-                                         shape_tol_frac, completed)
     h, w = shape[:2]
-    keep &= (vertices >= BORDER_PX).all(axis=1) & (vertices[:, 0] <= w - 1 - BORDER_PX) & (
+    ok = (vertices >= BORDER_PX).all(axis=1) & (vertices[:, 0] <= w - 1 - BORDER_PX) & (
         vertices[:, 1] <= h - 1 - BORDER_PX)
     # A corner a face loses to the border or to a post in front hides its colour there: a
     # vertex another face puts at it would go without that colour (a wrong id).
     lost = {int(lab[c]) for f, lab, cs in zip(faces, labels, measured) if not f.thin
             for c in range(4) if c not in cs}
-    keep &= np.array([k not in lost for k in keys])
-    if not any(keep[v] and bin(int(masks[v])).count('1') >= 2 for v in range(len(keys))):
+    ok &= np.array([k not in lost for k in keys])
+    two = np.array([bin(int(m)).count('1') >= 2 for m in masks])  # colours meet there
+    keep, proj = _explained(faces, vertices, Ks, shape_tol_frac, 0.0)
+    if not (keep & ok & two).any() and any(f.cut >= 0 and f.runs_on and
+                                           f.ramp_px <= loose_ramp_px for f in faces):
+        keep, proj = _explained(faces, vertices, Ks, shape_tol_frac, loose_ramp_px)
+    keep &= ok
+    if not (keep & two).any():
         return None
     seen = [any(keep[index[int(lab[c])]] for c in cs) for lab, cs in zip(labels, measured)]
     faces = [f for f, s in zip(faces, seen) if s]

@@ -92,6 +92,10 @@ class CubeConfig:
     :param occluder_join_aspect: ... and, unless both pieces are cut along the post, the
         joined face is at most this many times as wide as tall (a face seen from beside: not
         two objects of its colour far apart; a top split by the post is wider).
+    :param cut_loose_ramp_px: a face the border or a post cuts poses the cube only when its
+        seen sides ramp (25-75 %) over at most ``CUT_MAX_RAMP_PX``; when no such pose keeps a
+        vertex, one whose sides ramp over at most this many px (a motion streak of about
+        twice that) poses it (0: never).
     :param small_cube_frac: a cube the sharp pass poses whose area is under this fraction of
         the paper's smallest (``min_area_frac``) is the cube in view, too far away, for
         ``cube_track`` to follow (0: never). Under the paper's area at all, the frame's
@@ -137,6 +141,7 @@ class CubeConfig:
     occluder_max_tilt_deg: float = 20.0
     occluder_join_frac: float = 0.04
     occluder_join_aspect: float = 1.5
+    cut_loose_ramp_px: float = 5.0
     small_cube_frac: float = 0.8
     track_full_every: int = 10
     track_margin_frac: float = 0.5
@@ -162,6 +167,8 @@ class CubeConfig:
                 0.0 < self.occluder_min_frac <= 1.0 and 0.0 <= self.occluder_max_tilt_deg < 90.0):
             raise ValueError('need 0 <= occluder_reach[0] < occluder_reach[1], occluder_min_frac '
                              'in (0, 1] and occluder_max_tilt_deg in [0, 90)')
+        if self.cut_loose_ramp_px < 0.0:
+            raise ValueError(f'cut_loose_ramp_px must be >= 0, got {self.cut_loose_ramp_px}')
         if self.occluder_join_frac < 0.0 or self.occluder_join_aspect <= 0.0:
             raise ValueError('need occluder_join_frac >= 0 and occluder_join_aspect > 0')
         if not 0.0 <= self.small_cube_frac <= 1.0:  # over 1: cubes the paper keeps dropped
@@ -192,7 +199,8 @@ class Face:
     corner beyond the image border of a face the border cuts across it (``cube_border``: no
     cube vertex, and the face poses nothing), -1 for none; ``seen``: the (4, 2) outlines of
     the pieces a face joined across a post in front shows (``cube_occluder.join_pieces``),
-    empty for a face seen whole.
+    empty for a face seen whole; ``ramp_px``: how wide the seen sides of a cut face ramp
+    (25-75 %, the widest, px; 0 for a face not cut).
     """
 
     colour: str
@@ -204,6 +212,7 @@ class Face:
     cut: int = -1
     outside: int = -1
     seen: tuple[Array, ...] = ()
+    ramp_px: float = 0.0
 
 
 def colour_mask(hsv: npt.NDArray[np.uint8], hue_deg: tuple[float, float], cfg: CubeConfig
@@ -413,12 +422,11 @@ def _refine_each(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array,
                 cut = (int(np.argmax(occ)), ls[int(np.argmax(occ))])
         # A cut face poses the cube from an extrapolation: only on sharp sides (a motion
         # streak across them shifts its seen corners by pixels); smeared, it is mute.
-        smeared = cut is not None and sides.ramp_widths(
+        ramp = 0.0 if cut is None else float(sides.ramp_widths(
             image_bgr, ls[real], np.stack([corners, corners[NEXT]], 1)[real],
-            6.0, inside[4 * f:4 * f + 4][real], outside[4 * f:4 * f + 4][real]).max() \
-            > CUT_MAX_RAMP_PX
-        faces[-1] = Face(colour, corners, ls, sup, runs_on=bool(smeared),
-                         cut=-1 if cut is None else cut[0], outside=out)
+            6.0, inside[4 * f:4 * f + 4][real], outside[4 * f:4 * f + 4][real]).max())
+        faces[-1] = Face(colour, corners, ls, sup, runs_on=ramp > CUT_MAX_RAMP_PX,
+                         cut=-1 if cut is None else cut[0], outside=out, ramp_px=ramp)
     return faces
 
 
@@ -791,7 +799,7 @@ def _cubes(image_bgr: npt.NDArray[np.uint8], faces: list[Face], cfg: CubeConfig,
             continue  # the paper's area test, on the whole cube
         det = cube_assembly.cube_detection(
             [faces[f] for f in members], [labels[4 * f:4 * f + 4] for f in members],
-            Ks, image_bgr.shape, cfg.shape_tol_frac)
+            Ks, image_bgr.shape, cfg.shape_tol_frac, cfg.cut_loose_ramp_px)
         if det is not None and area < min_area and small is not None:
             small.append((det, area / min_area))
         elif det is not None:

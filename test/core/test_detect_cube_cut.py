@@ -80,3 +80,17 @@ def test_face_split_by_a_post_is_joined_from_its_pieces():
     assert len(yellow) == 2 and max(p[:, 0].min() for p in yellow) - \
         min(p[:, 0].max() for p in yellow) > 40.0
     assert not _cubes('outdoor_cube_72_180.jpg', occluder_join_frac=0.0)[1]
+
+
+def test_smeared_cut_faces_pose_the_cube_when_nothing_sharp_does():
+    # The red face is whole but too narrow to pose the cube; the yellow and purple faces,
+    # cut along a side by the right border, ramp over 4.2 and 3.3 px under a 10 px streak.
+    fr, dets = _cubes('outdoor_cube_51_233.jpg')
+    assert len(dets) == 1
+    err = sim_cube_frames.errors(fr, dets[0])
+    assert len(err) == 2 and (err[:, 0] < 1.0).all(), err  # both seen vertices, to a pixel
+    assert sorted(dets[0].vertex_ids.tolist()) == [3, 7]  # red-yellow; all three colours
+    assert (dets[0].vertices_px[:, 0] < 1280 - 2).all()
+    # Sharp poses only (the cut faces mute): nothing.
+    assert not _cubes('outdoor_cube_51_233.jpg', cut_loose_ramp_px=0.0)[1]
+    assert not _cubes('outdoor_cube_51_233.jpg', cut_loose_ramp_px=4.0)[1]
