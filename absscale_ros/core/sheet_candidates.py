@@ -302,9 +302,9 @@ class Candidates:
             gap = max(ox - (x + w), x - (ox + ow), oy - (y + h), y - (oy + oh))
             if gap > self.cfg.split_gap * size:
                 continue
-            gap = -max(cv2.pointPolygonTest(contour, (float(px), float(py)), True)
-                       for px, py in other.reshape(-1, 2))
-            if gap <= self.cfg.split_gap * size:
+            # (its nearest point no farther than that: the first one found will do)
+            if any(cv2.pointPolygonTest(contour, (float(px), float(py)), True)
+                   >= -self.cfg.split_gap * size for px, py in other.reshape(-1, 2)):
                 self._split.append((np.vstack([contour, other]), white))
                 self._split_parts.append(other)
                 added = True

@@ -31,6 +31,7 @@ BLUNT_FRAC = 0.4  # ... and shorter than this fraction of both neighbours (a pag
 # px inside every side of the seen outline: there the seen region's own outline is an
 # occluder's notch, which the outline follows (a box's corner reaching into the sheet)
 NOTCH_PX = 4.0
+_ROLL5 = [np.roll(np.arange(5), -k) for k in range(5)]  # np.roll(p, -k, axis=0) of 5 corners
 
 
 @dataclass(frozen=True, eq=False)
@@ -67,7 +68,7 @@ def sharp_pentagon(contour: npt.NDArray[np.int32], plain: Array | None) -> Array
     sharp = sharpened(fine.reshape(-1, 2).astype(np.float64))
     if sharp is None or len(sharp) != 5:
         return None
-    if plain is not None and any(np.abs(np.roll(sharp, -k, axis=0) - plain).max() <= 2.0
+    if plain is not None and any(np.abs(sharp[_ROLL5[k]] - plain).max() <= 2.0
                                  for k in range(5)):
         return None
     return sharp
@@ -81,12 +82,16 @@ def sharpened(poly: Array) -> Array | None:
     """
     poly = poly.copy()
     while len(poly) > 4:
-        ln = np.hypot(*(np.roll(poly, -1, axis=0) - poly).T)
-        short = (ln < BLUNT_PX) & (ln < BLUNT_FRAC * np.minimum(np.roll(ln, 1), np.roll(ln, -1)))
+        n = len(poly)
+        prev = np.arange(-1, n - 1)  # (np.roll's order, indexed: the same values, cheaper)
+        nxt = prev + 2
+        nxt[-1] = 0
+        ln = np.hypot(*(poly[nxt] - poly).T)
+        short = (ln < BLUNT_PX) & (ln < BLUNT_FRAC * np.minimum(ln[prev], ln[nxt]))
         if not short.any():
             return poly
         e = int(np.argmin(np.where(short, ln, np.inf)))
-        n, centre = len(poly), poly.mean(axis=0)
+        centre = poly.mean(axis=0)
         meet = lines.intersect(lines.line_through(poly[(e - 1) % n], poly[e], centre),
                                lines.line_through(poly[(e + 1) % n], poly[(e + 2) % n], centre))
         if meet is None or np.hypot(*(meet - poly[e])) > 2.0 * BLUNT_PX:
@@ -108,13 +113,13 @@ def hypotheses(poly: Array, min_seen: float) -> list[Partial]:
     # Edge e runs from poly[e] to poly[e + 1]; each hypothesis uses three of the five lines.
     edges = [lines.line_through(poly[e], poly[(e + 1) % 5], centre) for e in range(5)]
     for k in range(5):
-        p = poly[[(i + k + 2) % 5 for i in range(5)]]  # p[3], p[4]: the cut (edge k)
         corner = lines.intersect(edges[(k + 4) % 5], edges[(k + 1) % 5])  # p2 p3, p4 p0
         if corner is None:
             continue
         cut = edges[k]
         if cut[:2] @ corner + cut[2] <= 1.0:
             continue  # not beyond the cut: these sides do not meet at a hidden corner
+        p = poly[_ROLL5[(k + 2) % 5]]  # p[3], p[4]: the cut (edge k)
         frac = np.array([np.hypot(*(p[3] - p[2])) / max(np.hypot(*(corner - p[2])), 1e-9),
                          np.hypot(*(p[0] - p[4])) / max(np.hypot(*(p[0] - corner)), 1e-9)])
         if frac.min() < min_seen or frac.max() > 1.0:

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 
 from absscale_ros.core import detect_sheet, lines, sheet_candidates, sheet_checks, sheet_partial, \
-    sheet_split, sheet_stub
+    sheet_split, sheet_stub, sides
 
 sys.path.insert(0, str(Path(__file__).parent))
 import synth_targets as st  # noqa: E402
@@ -154,3 +154,35 @@ def test_split_path_tests_its_hypotheses_together_with_the_same_answer():
     assert sum(not np.array_equal(m.seen_ends, h.seen_ends) for m, h in zip(many, hyps)) > 0
     for m, h in zip(many, hyps):
         assert m.seen_ends.tobytes() == sheet_split.narrowed(h, img).seen_ends.tobytes()
+
+
+def _profiles_padded(image_bgr, lines_, ends, band_px, ns):
+    """``sides._profiles`` as it was before sampling each side's own profiles only: every
+    side sampled at the largest count, its repeats too."""
+    q = sides._project_ends(lines_, ends)
+    j = np.minimum(np.arange(ns.max())[None, :], ns[:, None] - 1)
+    ts = sides.MARGIN + (1.0 - 2.0 * sides.MARGIN) * (j + 0.5) / ns[:, None]
+    centres = q[:, None, 0, :] + ts[:, :, None] * (q[:, 1, :] - q[:, 0, :])[:, None, :]
+    offs = np.arange(-band_px, band_px + 1e-9, sides.STEP_PX)
+    s, n, k = len(lines_), centres.shape[1], len(offs)
+    u, v = (centres[:, :, i, None] + offs * lines_[:, None, None, i] for i in (0, 1))
+    samples = cv2.remap(image_bgr, u.reshape(s * n, k).astype(np.float32),
+                        v.reshape(s * n, k).astype(np.float32), cv2.INTER_LINEAR,
+                        borderMode=cv2.BORDER_REPLICATE)
+    return centres, offs, samples.reshape(s, n, k, 3).astype(np.float32)
+
+
+def test_side_profiles_of_candidates_with_different_counts_are_the_padded_ones():
+    """Sides of 16-64 profiles refined in one call: sampling each side's own profiles and
+    copying its last one gives the samples (and refined lines) of sampling every side at the
+    largest count, bit for bit, on a rendered frame."""
+    _, img = _occluded([[680, 500], [800, 470], [830, 640], [700, 660]])
+    rng = np.random.default_rng(7)
+    p0 = rng.uniform(0, 1280, (40, 2)) * [1.0, 0.5625]
+    p1 = p0 + rng.uniform(-300, 300, (40, 2))
+    ls = np.array([lines.line_through(a, b, a + rng.normal(0, 50, 2)) for a, b in zip(p0, p1)])
+    ends = np.stack([p0, p1], axis=1)
+    for ns in (rng.integers(16, 65, 40), np.full(40, 33)):
+        want = _profiles_padded(img, ls, ends, 8.0, ns)
+        got = sides._profiles(img, ls, ends, 8.0, ns)
+        assert all(a.tobytes() == b.tobytes() for a, b in zip(want, got))
