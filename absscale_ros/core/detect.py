@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from absscale_ros.core import cube_track, detect_cube, detect_sheet, targets
+from absscale_ros.core import cube_track, detect_cube, detect_sheet, sheet_track, targets
 
 TARGET_CHOICES = ('letter', 'a4', 'custom', 'sheet', 'cube', 'auto')
 
@@ -72,7 +72,8 @@ class FrameDetections:
 def detect(image_bgr: npt.NDArray[np.uint8], cfg: DetectConfig,
            K: npt.NDArray[np.float64] | None = None,
            dist: npt.NDArray[np.float64] | None = None,
-           tracker: cube_track.CubeTracker | None = None) -> FrameDetections:
+           tracker: cube_track.CubeTracker | None = None,
+           sheet_history: sheet_track.SheetHistory | None = None) -> FrameDetections:
     """
     Run the configured detectors on one BGR image.
 
@@ -83,6 +84,9 @@ def detect(image_bgr: npt.NDArray[np.uint8], cfg: DetectConfig,
         aspect check; None for none.
     :param tracker: for frames of one video in order: the cube searched first around where the
         last frame showed it (``cube_track``; made with ``cfg.cube``); None: the whole frame.
+    :param sheet_history: for frames of one video in order: the aspect errors of the
+        rectangles the sheet detector measured in the last frames (``sheet_track``); None:
+        each frame alone.
     """
     if image_bgr.ndim != 3 or image_bgr.shape[2] != 3 or image_bgr.dtype != np.uint8:
         raise ValueError(f'need an (H, W, 3) uint8 image, got {image_bgr.shape} {image_bgr.dtype}')
@@ -100,7 +104,8 @@ def detect(image_bgr: npt.NDArray[np.uint8], cfg: DetectConfig,
     if sheet_cfgs:
         looked.append('sheet')
     for sheet_cfg in sheet_cfgs:
-        for det in detect_sheet.detect_sheets(image_bgr, sheet_cfg, K, half, dist):
+        for det in detect_sheet.detect_sheets(image_bgr, sheet_cfg, K, half, dist,
+                                              sheet_history):
             if not any(_same_sheet(det, d) for d in found):
                 found.append(det)
     found = [replace(d, object_id=i) for i, d in enumerate(found)]

@@ -21,7 +21,8 @@ import numpy as np
 import numpy.typing as npt
 
 from absscale_ros.core import (lines, quads, sheet_border, sheet_candidates, sheet_checks,
-                               sheet_partial, sheet_split, sheet_stub, sides, targets)
+                               sheet_partial, sheet_split, sheet_stub, sheet_track, sides,
+                               targets)
 
 Array = npt.NDArray[np.float64]
 FIRST_PASS_SUPPORT = 0.25  # a side less supported after the widest refinement pass: no sheet
@@ -123,6 +124,13 @@ class SheetConfig:
     :param blur_band_frac: when no whole sheet is found, rough quadrilaterals are retried as
         a motion-blurred sheet (before the hidden-corner paths), each side searched this
         fraction of the shorter side either side (``_accept_blurred``; 0 turns it off).
+    :param aspect_history: frames of a video (``detect_sheets``' ``history``) over which a whole
+        rectangle's aspect errors are kept: one that passes the aspect test in this frame is
+        not reported when the median of its error over the tolerance over the frames it was
+        measured in, this one included, is above one (``sheet_track``: a 4:3 board passes in
+        the odd frame where corner noise pulls it towards letter; 0 turns it off).
+    :param aspect_history_min: ... when it was measured in at least this many of those
+        frames before this one.
     """
 
     sheet: str = 'letter'
@@ -161,6 +169,8 @@ class SheetConfig:
     split_gap: float = 2.0
     border_corner: bool = True
     blur_band_frac: float = 0.4
+    aspect_history: int = 20
+    aspect_history_min: int = 2
 
     def __post_init__(self) -> None:
         if not 0.0 < self.min_area_frac < 1.0:
@@ -179,6 +189,8 @@ class SheetConfig:
             raise ValueError(f'need 0 < aspect_floor <= aspect_tol, got {self.aspect_floor}')
         if self.max_shade < 1.0:
             raise ValueError(f'max_shade must be >= 1, got {self.max_shade}')
+        if self.aspect_history < 0 or self.aspect_history_min < 1:
+            raise ValueError('need aspect_history >= 0 and aspect_history_min >= 1')
         self.models()  # raises ValueError on an unknown sheet
 
     def model(self) -> targets.SheetModel:
@@ -246,7 +258,8 @@ def _quad_from_sides(quad_px: Array, out: sides.Refined, coarse_band_px: float
 
 def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
                   K: Array | None = None, half: npt.NDArray[np.uint8] | None = None,
-                  dist: Array | None = None) -> list[targets.TargetDetection]:
+                  dist: Array | None = None, history: sheet_track.SheetHistory | None = None
+                  ) -> list[targets.TargetDetection]:
     """
     Find every sheet of the configured size in a BGR image.
 
@@ -257,8 +270,14 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
     :param K: (3, 3) intrinsics px for the aspect check, or None to estimate.
     :param half: the image box-filtered to half its size, when another detector made it.
     :param dist: OpenCV distortion coefficients of the camera (the aspect check undoes them).
+    :param history: for frames of one video in order: the aspect errors of the rectangles
+        seen in the last frames (``cfg.aspect_history``); None: this frame alone.
     :returns: detections, best first; each has 4 corners ordered as in ``targets``.
     """
+    if history is not None and cfg.aspect_history > 0:
+        history.next_frame(cfg.aspect_history)
+    else:
+        history = None
     h, w = image_bgr.shape[:2]
     scale = min(1.0, cfg.work_max_side_px / max(h, w))
     work = sheet_candidates.shrink(image_bgr, scale, half)
@@ -267,11 +286,11 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
     cands = sheet_candidates.Candidates(work, cfg)
     small: list[Array] = []
     unfound = _accept_quads(image_bgr, [lines.full_px(q, scale) for q in cands.quads], band,
-                            cfg, K, found, dist, small)
+                            cfg, K, found, dist, small, history)
     if not found:  # the colour-edge masks only when the whiteness masks show no sheet
         unfound += _accept_quads(image_bgr, [lines.full_px(q, scale)
                                              for q in cands.edge_quads()], band, cfg, K, found,
-                                 dist, small)
+                                 dist, small, history)
     if not found and cfg.line_candidates:
         more = sheet_candidates.colour_quads(work, cands.regions, cfg) + \
             sheet_candidates.detached_quads(work, cfg) + sheet_candidates.chroma_quads(work, cfg)
@@ -285,7 +304,7 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
             _accept_quads(image_bgr, [q for q, _ in line_quads], line_quads[0][1], cfg, K, found,
                           dist)
     if not found and cfg.blur_band_frac > 0.0:
-        _accept_blurred(image_bgr, unfound, band, cfg, K, found, dist)
+        _accept_blurred(image_bgr, unfound, band, cfg, K, found, dist, history)
     if not found:
         hidden = [r for r in cands.white_regions if not _whole_small(r[0], small, scale)]
         _accept_hidden(image_bgr, hidden, scale, band, cfg, K, found, dist,
@@ -351,12 +370,14 @@ def _accept(image_bgr: npt.NDArray[np.uint8], quad_full: Array, band: float, cfg
 
 def _accept_quads(image_bgr: npt.NDArray[np.uint8], quads_full: list[Array], band: float,
                   cfg: SheetConfig, K: Array | None, found: list[Found],
-                  dist: Array | None = None, small: list[Array] | None = None) -> list[Array]:
+                  dist: Array | None = None, small: list[Array] | None = None,
+                  history: sheet_track.SheetHistory | None = None) -> list[Array]:
     """
     Refine candidates (all at once, ``_refine_quads``); append each that passes every test to
-    ``found``, in order. Return those whose sides were not found or not supported (for
-    ``_accept_blurred``); append to ``small`` the refined corners of those whose four sides
-    are all supported but which are too small (``_whole_small``).
+    ``found``, in order (and that ``history`` does not refute, ``_passes_history``). Return
+    those whose sides were not found or not supported (for ``_accept_blurred``); append to
+    ``small`` the refined corners of those whose four sides are all supported but which are
+    too small (``_whole_small``).
     """
     # Rough corners: a looser aspect test here, the exact one after refinement.
     quads_full = [q for q in quads_full if _rough_aspect_ok(q, image_bgr.shape, band, cfg, K,
@@ -374,10 +395,26 @@ def _accept_quads(image_bgr: npt.NDArray[np.uint8], quads_full: list[Array], ban
         # (``_passes`` applies the floor-tile test to the refined corners: refining every
         # candidate together costs less than testing the rough ones first)
         if sheet_checks.big_enough(refined[0], image_bgr.shape, cfg) and \
-                sheet_checks.passes(image_bgr, refined, cfg, K, dist=dist) and \
+                _passes_history(image_bgr, refined, cfg, K, dist, history) and \
                 all(np.abs(refined[0] - f[1]).max() > 4.0 for f in found):
             found.append((float(refined[1].mean()), refined[0], refined[0], None))
     return unfound
+
+
+def _passes_history(image_bgr: npt.NDArray[np.uint8], refined: Refined, cfg: SheetConfig,
+                    K: Array | None, dist: Array | None,
+                    history: sheet_track.SheetHistory | None,
+                    aspect_tol: float | None = None) -> bool:
+    """``sheet_checks.passes`` of a whole quadrilateral, noting its aspect error in
+    ``history`` (when given), which must not refute it (``sheet_track``)."""
+    if history is None:
+        return sheet_checks.passes(image_bgr, refined, cfg, K, aspect_tol=aspect_tol, dist=dist)
+    ratio: list[float] = []
+    ok = sheet_checks.passes(image_bgr, refined, cfg, K, aspect_tol=aspect_tol, dist=dist,
+                             note=ratio.append)
+    if ratio:
+        history.note(refined[0], ratio[0])
+    return ok and not history.refuted(refined[0], cfg.aspect_history, cfg.aspect_history_min)
 
 
 def _whole_small(contour: npt.NDArray[np.int32], small: list[Array], scale: float) -> bool:
@@ -424,7 +461,8 @@ def _side_ramps(image_bgr: npt.NDArray[np.uint8], quad: Array, wide: float,
 
 def _accept_blurred(image_bgr: npt.NDArray[np.uint8], quads_full: list[Array], band: float,
                     cfg: SheetConfig, K: Array | None, found: list[Found],
-                    dist: Array | None = None) -> None:
+                    dist: Array | None = None,
+                    history: sheet_track.SheetHistory | None = None) -> None:
     """
     Retry the rough quadrilaterals as a sheet smeared by motion blur: its sides are ramps
     longer than the refinement band, whose steepest point wanders along them. Each side is
@@ -447,7 +485,7 @@ def _accept_blurred(image_bgr: npt.NDArray[np.uint8], quads_full: list[Array], b
         if not _motion_ramps(ramps):
             continue  # sharp, or one side smeared by something else than motion
         tol = _blur_aspect_tol(refined[0], ramps, cfg, K, dist)
-        if sheet_checks.passes(image_bgr, refined, cfg, K, aspect_tol=tol, dist=dist):
+        if _passes_history(image_bgr, refined, cfg, K, dist, history, tol):
             found.append((float(refined[1].mean()), refined[0], refined[0], None))
             return  # one blurred sheet at most: the masks outline it several times
 

@@ -3,7 +3,7 @@ The sheet detector's tests of a refined candidate: support and contrast, one col
 outside, the sheet's aspect, not a floor tile between grout lines, big enough, and for a
 hidden corner something lying on it.
 """
-from typing import TYPE_CHECKING
+from typing import Callable, TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -54,11 +54,14 @@ def big_enough(outline: Array, shape: tuple[int, ...], cfg: 'SheetConfig') -> bo
 
 def passes(image_bgr: npt.NDArray[np.uint8], refined: sides.Refined, cfg: 'SheetConfig',
            K: Array | None, seen_ends: Array | None = None,
-           aspect_tol: float | None = None, dist: Array | None = None) -> bool:
+           aspect_tol: float | None = None, dist: Array | None = None,
+           note: Callable[[float], None] | None = None) -> bool:
     """
     Apply the support, contrast, one-colour, aspect and floor-tile tests to a refined
     quadrilateral (``seen_ends`` (4, 2, 2): the seen part of each side, default all of it;
     ``aspect_tol``: instead of ``aspect_tolerance``; ``dist``: see ``aspect_error``).
+    ``note`` is given the aspect error over its tolerance when the tests before the aspect's
+    pass (``sheet_track``).
     """
     corners, supports, steps, inside, outside = refined
     if supports.min() < cfg.min_support or steps.min() < cfg.min_contrast:
@@ -70,8 +73,13 @@ def passes(image_bgr: npt.NDArray[np.uint8], refined: sides.Refined, cfg: 'Sheet
     if not one_colour(outside, cfg.max_outside_spread, 1.0, cfg.max_shade):
         return False  # a sheet lies on one surface: wall between table legs, floor below
     err = aspect_error(corners, image_bgr.shape, cfg, K, dist)
-    if err > cfg.aspect_floor and err > (aspect_tolerance(corners, cfg, K, dist=dist)
-                                         if aspect_tol is None else aspect_tol):
+    tol = cfg.aspect_floor
+    if note is not None or err > cfg.aspect_floor:
+        tol = max(tol, aspect_tolerance(corners, cfg, K, dist=dist) if aspect_tol is None
+                  else aspect_tol)
+    if note is not None:
+        note(err / tol)
+    if err > tol:
         return False
     return not tile(image_bgr, corners, cfg, seen_ends)
 

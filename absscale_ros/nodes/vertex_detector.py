@@ -29,7 +29,7 @@ import time
 from typing import Any
 
 from absscale_ros import conversions
-from absscale_ros.core import cube_track, detect, detect_cube, detect_sheet, errors
+from absscale_ros.core import cube_track, detect, detect_cube, detect_sheet, errors, sheet_track
 from absscale_ros.nodes import common
 import numpy as np
 from rclpy.node import Node
@@ -53,6 +53,7 @@ class VertexDetectorNode(Node):
             cube=common.declare_config(self, detect_cube.CubeConfig(), 'cube'))
         # Frames come in order: the cube is looked for first where the last frame showed it.
         self._tracker = cube_track.CubeTracker(self._cfg.cube)
+        self._sheets = sheet_track.SheetHistory()  # and a sheet's aspect over the last frames
         in_qos = common.SENSOR if qos == 'sensor_data' else common.RELIABLE
         self._vertices_pub = self.create_publisher(PointCloud2, '/absscale/vertices',
                                                    common.RELIABLE)
@@ -88,7 +89,8 @@ class VertexDetectorNode(Node):
         try:
             image = conversions.image_msg_to_bgr(msg)
             t0 = time.perf_counter()
-            result = detect.detect(image, self._cfg, self._K, self._dist, self._tracker)
+            result = detect.detect(image, self._cfg, self._K, self._dist, self._tracker,
+                                   self._sheets)
             self._times_ms.append(1e3 * (time.perf_counter() - t0))
             cloud = detect.vertices_array(result)
             self._vertices_pub.publish(

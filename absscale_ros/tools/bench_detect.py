@@ -8,8 +8,9 @@ the longer image edge at the vertex) and in px, detection rate over frames where
 covers >= 0.5% of the image, frames with vertices although no target is visible, and time per
 frame (decode excluded; one OpenCV thread unless --threads). Frames go through the detector
 in order, as in the vertex_detector node (the cube looked for first around the last frame's:
-``cube_track``). Prints a table shaped like the paper's Table 2 with the paper's figures
-beside ours, every figure twice: over all frames and over the frames whose longest motion-blur
+``cube_track``; a rectangle's aspect judged over the last frames: ``sheet_track``). Prints a
+table shaped like the paper's Table 2 with the paper's figures beside ours, every figure
+twice: over all frames and over the frames whose longest motion-blur
 streak (gt.json ``motion_blur_px``) is at most ``--max-blur`` px. ``--dump-misses DIR`` writes
 each missed frame (a target covering the 0.5% area but no vertex matched) as a PNG with the
 detections and the true vertices drawn.
@@ -24,7 +25,7 @@ import cv2
 import numpy as np
 
 from absscale_ros import bagio, conversions
-from absscale_ros.core import cube_track, detect
+from absscale_ros.core import cube_track, detect, sheet_track
 
 LABELS = ('red', 'yellow', 'purple', 'sheet')
 # The paper's Table 2: precision %, recall %, corner error delta / l.
@@ -168,6 +169,7 @@ def bench_bag(path: str, target: str, max_frames: int, tally: Tally,
     dist = np.array(gt['camera']['D'], float) if gt['camera'].get('D') else None
     cfg = detect.DetectConfig(target=target)
     tracker = cube_track.CubeTracker(cfg.cube)  # frames in order, as the detector node sees them
+    sheets = sheet_track.SheetHistory()
     topic = gt['bag']['image_topic']
     with bagio.open_bag(path) as reader:
         for k, bm in enumerate(reader.messages([topic])):
@@ -178,7 +180,7 @@ def bench_bag(path: str, target: str, max_frames: int, tally: Tally,
             img = (conversions.compressed_msg_to_bgr(msg) if compressed
                    else conversions.image_msg_to_bgr(msg))
             t0 = time.process_time()  # CPU time of this process: other load does not count
-            res = detect.detect(img, cfg, K, dist, tracker)
+            res = detect.detect(img, cfg, K, dist, tracker, sheets)
             ms = 1e3 * (time.process_time() - t0)
             fr = gt['frames'][k]
             blur = float(fr.get('motion_blur_px') or 0.0)

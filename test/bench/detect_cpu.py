@@ -6,7 +6,8 @@ CPU time per frame of the vertex detector against a baseline tree, interleaved f
 
 The baseline's ``absscale_ros`` is copied under another package name (its absolute imports
 renamed) so both detectors live in one process. Frames go through each tree's detector in
-order, as in its vertex_detector node (with its ``cube_track.CubeTracker`` where it has one).
+order, as in its vertex_detector node (with its ``cube_track.CubeTracker`` and
+``sheet_track.SheetHistory`` where it has them).
 Accuracy is `absscale bench detect`'s job.
 """
 import argparse
@@ -40,6 +41,13 @@ def _tracker(mod: object, target: str) -> object | None:
     return track.CubeTracker(mod.DetectConfig(target=target).cube)
 
 
+def _history(mod: object, target: str) -> object | None:
+    """A sheet aspect history of the tree of ``mod`` (its ``core.detect``) for ``target``, or
+    None (no sheet looked for, or a tree without ``sheet_track``)."""
+    track = getattr(mod, 'sheet_track', None)
+    return None if track is None or target == 'cube' else track.SheetHistory()
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('bags', nargs='+', help='simulator bags (BAG.gt.json beside each)')
@@ -57,6 +65,8 @@ def main() -> int:
             sheet = 'letter' if sheet == 'cube' else sheet
             trackers = {(name, target): _tracker(mod, target) for name, mod in
                         (('base', old), ('new', new)) for target in (sheet, 'cube', 'auto')}
+            histories = {(name, target): _history(mod, target) for name, mod in
+                         (('base', old), ('new', new)) for target in (sheet, 'cube', 'auto')}
             with bagio.open_bag(path) as reader:
                 for k, raw in enumerate(reader.messages([gt['bag']['image_topic']])):
                     msg = reader.deserialize(raw)
@@ -68,11 +78,10 @@ def main() -> int:
                         for name, mod in order if k % 2 else order[::-1]:
                             cfg = mod.DetectConfig(target=target)
                             t0 = time.process_time()
-                            tracker = trackers[(name, target)]
-                            if tracker is None:
-                                mod.detect(img, cfg, K)
-                            else:
-                                mod.detect(img, cfg, K, tracker=tracker)
+                            kwargs = {k: v for k, v in (
+                                ('tracker', trackers[(name, target)]),
+                                ('sheet_history', histories[(name, target)])) if v is not None}
+                            mod.detect(img, cfg, K, **kwargs)
                             kind = target if target in ('cube', 'auto') else 'sheet'
                             times.setdefault((name, kind), []).append(
                                 1e3 * (time.process_time() - t0))
