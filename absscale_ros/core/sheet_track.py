@@ -45,6 +45,8 @@ class SheetHistory:
         """Start the next frame; forget rectangles not measured in the last ``window`` frames."""
         self._frame += 1
         self._tracks = [t for t in self._tracks if self._frame - t.last <= window]
+        for t in self._tracks:  # (a page followed for minutes: only the window counts)
+            t.ratios = {k: r for k, r in t.ratios.items() if self._frame - k <= window}
 
     def note(self, corners: Array, ratio: float) -> None:
         """Add this frame's aspect error over its tolerance of the rectangle ``corners``

@@ -26,6 +26,15 @@ def test_a_rectangle_that_fails_in_most_frames_is_refuted_when_it_passes():
     assert not history.refuted(elsewhere, 20, 1)
 
 
+def test_only_the_window_is_kept():
+    history = sheet_track.SheetHistory()
+    for ratio in [1.5] * 30 + [0.5] * 3:  # refuted long ago, passing in the last frames
+        history.next_frame(3)
+        history.note(SQUARE, ratio)
+    assert not history.refuted(SQUARE, 3, 2)
+    assert len(history._tracks) == 1 and len(history._tracks[0].ratios) == 4
+
+
 def test_a_rectangle_that_passes_in_most_frames_is_kept():
     history = sheet_track.SheetHistory()
     for ratio in (0.5, 1.2, 0.7, 0.8):
