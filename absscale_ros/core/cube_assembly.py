@@ -33,7 +33,9 @@ def cluster_corners(faces: list['Face'], merge_frac: float) -> npt.NDArray[np.in
     pts = np.concatenate([f.corners_px for f in faces])
     owner = np.repeat(np.arange(len(faces)), 4)
     sides = [np.hypot(*(f.corners_px - f.corners_px[[1, 2, 3, 0]]).T) for f in faces]
-    longest, shortest = np.array([s.max() for s in sides]), np.array([s.min() for s in sides])
+    longest = np.array([s.max() for s in sides])
+    # (a tip face repeats its seen corner: its shortest side is a real one)
+    shortest = np.array([(s[s > 0.0] if f.tip else s).min() for s, f in zip(sides, faces)])
     parent = list(range(len(pts)))
     # A fraction of the longer sides (a narrow face's short side would allow too little), but
     # never so much that both ends of a short side could merge.
@@ -91,7 +93,7 @@ def _explained(faces: list['Face'], vertices: Array, Ks: list[Array], tol_frac: 
     posing = [_posing(f) for f in faces]
     completed = {f: cube_geometry.complete_cut(face.corners_px, face.lines, face.cut, Ks[0])
                  for f, face in enumerate(faces) if face.cut >= 0 and len(Ks) == 1 and
-                 (not face.runs_on or face.ramp_px <= loose_ramp_px)}
+                 not face.tip and (not face.runs_on or face.ramp_px <= loose_ramp_px)}
     completed = {f: c for f, c in completed.items()
                  if c is not None and _posing(dataclasses.replace(faces[f], corners_px=c, cut=-1))}
     posing = [p or f in completed for f, p in enumerate(posing)]
@@ -117,8 +119,9 @@ def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks:
     """
     # (nor the two corners where the image border cuts a face: the border's, not the cube's,
     # nor a corner beyond it)
-    measured = [(0, 3) if f.thin else [c for c in range(4) if (f.cut < 0 or (c - f.cut) % 4 > 1)
-                                       and c != f.outside] for f in faces]
+    measured = [(0, 3) if f.thin else [(f.cut + 2) % 4] if f.tip else
+                [c for c in range(4) if (f.cut < 0 or (c - f.cut) % 4 > 1) and c != f.outside]
+                for f in faces]
     keys = sorted({int(lab[c]) for lab, cs in zip(labels, measured) for c in cs})
     index = {k: i for i, k in enumerate(keys)}
     meeting: list[list[Array]] = [[] for _ in keys]
@@ -139,7 +142,7 @@ def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks:
     # A corner a face loses to the border or to a post in front hides its colour there: a
     # vertex another face puts at it would go without that colour (a wrong id).
     lost = {int(lab[c]) for f, lab, cs in zip(faces, labels, measured) if not f.thin
-            for c in range(4) if c not in cs}
+            for c in range(4) if c not in cs and not (f.tip and c == (f.cut + 3) % 4)}
     ok &= np.array([k not in lost for k in keys])
     two = np.array([bin(int(m)).count('1') >= 2 for m in masks])  # colours meet there
     keep, proj = _explained(faces, vertices, Ks, shape_tol_frac, 0.0)

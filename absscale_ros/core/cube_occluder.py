@@ -99,11 +99,12 @@ def join_pieces(faces: list['Face'], tol_frac: float, max_aspect: float) -> list
     out = list(faces)
     used: set[int] = set()
     for a, fa in enumerate(faces):
-        if fa.cut < 0 or fa.thin or a in used:
+        if fa.cut < 0 or fa.thin or fa.tip or a in used:
             continue
         ca = fa.corners_px.mean(axis=0)
         for b, fb in enumerate(faces):
-            if b == a or b in used or fb.thin or fb.colour != fa.colour or fb.outside >= 0:
+            if b == a or b in used or fb.thin or fb.tip or fb.colour != fa.colour or \
+                    fb.outside >= 0:
                 continue
             # b's side facing a: its own cut, else the one a lies farthest beyond
             d = fb.cut if fb.cut >= 0 else int(np.argmax(fb.lines[:, :2] @ ca + fb.lines[:, 2]))

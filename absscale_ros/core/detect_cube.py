@@ -24,7 +24,8 @@ import numpy as np
 import numpy.typing as npt
 
 from absscale_ros.core import (cube_assembly, cube_border, cube_geometry, cube_occluder,
-                               cube_prune, cube_split, cube_strips, lines, sides, targets)
+                               cube_prune, cube_split, cube_strips, cube_tip, lines, sides,
+                               targets)
 
 Array = npt.NDArray[np.float64]
 # The blur retry (``_smeared``): a face must ramp over this share of the band, and alike on
@@ -96,6 +97,10 @@ class CubeConfig:
         seen sides ramp (25-75 %) over at most ``CUT_MAX_RAMP_PX``; when no such pose keeps a
         vertex, one whose sides ramp over at most this many px (a motion streak of about
         twice that) poses it (0: never).
+    :param tip_max_frac: a face the border cuts along a side whose side opposite the border is
+        at most this fraction of the two sides leaving it is a face with one corner seen,
+        rounded by the mask, when its two sides meet there (``cube_tip``; they may ramp over
+        ``cut_loose_ramp_px`` at most; 0: never).
     :param small_cube_frac: a cube the sharp pass poses whose area is under this fraction of
         the paper's smallest (``min_area_frac``) is the cube in view, too far away, for
         ``cube_track`` to follow (0: never). Under the paper's area at all, the frame's
@@ -142,6 +147,7 @@ class CubeConfig:
     occluder_join_frac: float = 0.04
     occluder_join_aspect: float = 1.5
     cut_loose_ramp_px: float = 5.0
+    tip_max_frac: float = 0.2
     small_cube_frac: float = 0.8
     track_full_every: int = 10
     track_margin_frac: float = 0.5
@@ -167,8 +173,8 @@ class CubeConfig:
                 0.0 < self.occluder_min_frac <= 1.0 and 0.0 <= self.occluder_max_tilt_deg < 90.0):
             raise ValueError('need 0 <= occluder_reach[0] < occluder_reach[1], occluder_min_frac '
                              'in (0, 1] and occluder_max_tilt_deg in [0, 90)')
-        if self.cut_loose_ramp_px < 0.0:
-            raise ValueError(f'cut_loose_ramp_px must be >= 0, got {self.cut_loose_ramp_px}')
+        if self.cut_loose_ramp_px < 0.0 or not 0.0 <= self.tip_max_frac < 1.0:
+            raise ValueError('need cut_loose_ramp_px >= 0 and tip_max_frac in [0, 1)')
         if self.occluder_join_frac < 0.0 or self.occluder_join_aspect <= 0.0:
             raise ValueError('need occluder_join_frac >= 0 and occluder_join_aspect > 0')
         if not 0.0 <= self.small_cube_frac <= 1.0:  # over 1: cubes the paper keeps dropped
@@ -200,7 +206,9 @@ class Face:
     cube vertex, and the face poses nothing), -1 for none; ``seen``: the (4, 2) outlines of
     the pieces a face joined across a post in front shows (``cube_occluder.join_pieces``),
     empty for a face seen whole; ``ramp_px``: how wide the seen sides of a cut face ramp
-    (25-75 %, the widest, px; 0 for a face not cut).
+    (25-75 %, the widest, px; 0 for a face not cut); ``tip``: a face of which the border leaves
+    one corner, ``cut + 2`` (``cube_tip``: corner ``cut + 3`` and side line ``cut + 2`` repeat
+    it and side ``cut + 3``).
     """
 
     colour: str
@@ -213,6 +221,7 @@ class Face:
     outside: int = -1
     seen: tuple[Array, ...] = ()
     ramp_px: float = 0.0
+    tip: bool = False
 
 
 def colour_mask(hsv: npt.NDArray[np.uint8], hue_deg: tuple[float, float], cfg: CubeConfig
@@ -695,6 +704,11 @@ def detect_cubes(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
     Ks = [K] if K is not None else [cube_geometry.default_K(image_bgr.shape, f)
                                     for f in cfg.focal_fracs]
     refined = _refine_each(image_bgr, rough, cfg)
+    if cfg.tip_max_frac > 0.0:
+        for f, tip in cube_tip.tip_faces(image_bgr, rough, refined, _border_side, Face,
+                                         cfg.tip_max_frac, cfg.min_step, cfg.min_support,
+                                         cfg.cut_loose_ramp_px):
+            refined[f] = tip
     faces = [f for f in refined if f is not None]
     under: list[tuple[targets.TargetDetection, float]] = []
     out = _cubes(image_bgr, list(faces), cfg, Ks, small=under)

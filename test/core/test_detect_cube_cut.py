@@ -94,3 +94,16 @@ def test_smeared_cut_faces_pose_the_cube_when_nothing_sharp_does():
     # Sharp poses only (the cut faces mute): nothing.
     assert not _cubes('outdoor_cube_51_233.jpg', cut_loose_ramp_px=0.0)[1]
     assert not _cubes('outdoor_cube_51_233.jpg', cut_loose_ramp_px=4.0)[1]
+
+
+def test_a_face_with_one_corner_seen_names_its_colour_there():
+    # Of the yellow top the left border leaves a triangle whose tip the mask rounds: as a
+    # quad it keeps two corners ~12 px off the vertex. Its two sides meet at the vertex.
+    fr, dets = _cubes('outdoor_cube_68_237.jpg')
+    assert len(dets) == 1
+    err = sim_cube_frames.errors(fr, dets[0])
+    assert len(err) == 2 and (err[:, 0] < 0.5).all(), err
+    top = np.argmin(dets[0].vertices_px[:, 1])
+    assert dets[0].vertex_ids[top] & 7 == 3  # red and yellow meet there
+    assert 'yellow' in {c for c, _ in dets[0].polygons}
+    assert not _cubes('outdoor_cube_68_237.jpg', tip_max_frac=0.0)[1]
