@@ -118,6 +118,9 @@ class SheetConfig:
         times its size (square root of its area) away, for the hidden-corner path: a box on
         a sheet's corner, seen from low, cuts the sheet in two (``sheet_split``; 0 turns it
         off).
+    :param split_max_parts: a region with more small white regions than this within
+        ``split_gap`` is joined with none (``sheet_candidates.Candidates._add_split``): paving
+        or tiles, not a sheet a box cuts in two.
     :param border_corner: a corner beyond the image border is extrapolated like a hidden one
         (``sheet_border``: both sides at it seen over ``min_seen``, the cut along the border),
         also under motion blur (``blur_band_frac``): a pan sweeps the sheet out of view.
@@ -167,6 +170,7 @@ class SheetConfig:
     stub_px: float = 8.0
     notch_solidity: float = 0.55
     split_gap: float = 2.0
+    split_max_parts: int = 4
     border_corner: bool = True
     blur_band_frac: float = 0.4
     aspect_history: int = 20
@@ -187,6 +191,8 @@ class SheetConfig:
             raise ValueError(f'focal_range must be 0 < low <= high, got {self.focal_range}')
         if not 0.0 < self.aspect_floor <= self.aspect_tol:
             raise ValueError(f'need 0 < aspect_floor <= aspect_tol, got {self.aspect_floor}')
+        if self.split_max_parts < 1:
+            raise ValueError(f'split_max_parts must be >= 1, got {self.split_max_parts}')
         if self.max_shade < 1.0:
             raise ValueError(f'max_shade must be >= 1, got {self.max_shade}')
         if self.aspect_history < 0 or self.aspect_history_min < 1:

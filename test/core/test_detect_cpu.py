@@ -186,3 +186,24 @@ def test_side_profiles_of_candidates_with_different_counts_are_the_padded_ones()
         want = _profiles_padded(img, ls, ends, 8.0, ns)
         got = sides._profiles(img, ls, ends, 8.0, ns)
         assert all(a.tobytes() == b.tobytes() for a, b in zip(want, got))
+
+
+def test_regions_among_many_small_white_ones_are_not_joined():
+    """
+    ``split_max_parts``: on an outdoor frame of light pavers (seed 4, frames 22 and 28) a
+    paver region has a dozen small ones alike near it, and its joins (each a split-path
+    hypothesis refined or more) go; a page a box cuts in two (seeds 57 and 85) has one or two
+    parts near it, keeps every join and is still found.
+    """
+    data = Path(__file__).parents[1] / 'data' / 'sim_frames'
+    frames = {f['file']: f for f in json.loads((data / 'frames.json').read_text())['frames']}
+    cfg = detect_sheet.SheetConfig(sheet='letter', other_sheets=('a4',))
+    for name, pages in (('outdoor_cube_4d_22.jpg', 0), ('outdoor_cube_4d_28.jpg', 0),
+                        ('indoor_paper_57o_216.jpg', 1), ('indoor_paper_85o_210.jpg', 1)):
+        img = cv2.imread(str(data / name))
+        work = sheet_candidates.shrink(img, cfg.work_max_side_px / 1280.0)
+        joins = [len(sheet_candidates.Candidates(work, replace(cfg, split_max_parts=m))
+                     .split_regions) for m in (10 ** 6, cfg.split_max_parts)]
+        assert joins[1] < 0.5 * joins[0] if pages == 0 else joins[1] == joins[0] > 0
+        dets = detect_sheet.detect_sheets(img, cfg, np.array(frames[name]['K']))
+        assert len(dets) == pages
