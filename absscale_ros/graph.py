@@ -160,8 +160,9 @@ def start_nodes(context: rclpy.Context, sections: dict[str, dict[str, Any]],
                 ) -> dict[str, Node]:
     """
     Start the available pipeline nodes (those in ``only``, if given) in this process. In the
-    ``runner``'s own process the sfm maps each keyframe before it is acknowledged: on the
-    runner's one interpreter a queue would gain nothing.
+    ``runner``'s own process the sfm maps its queued keyframes on the executor's thread (on
+    the runner's one interpreter a worker would contend for the GIL), each once its features
+    are detected: that detection then overlaps the frame nodes' work.
     """
     names = [name for name, _ in available_modules(sections)]
     classes = {name: (module, cls) for name, module, cls in PIPELINE}
@@ -171,7 +172,7 @@ def start_nodes(context: rclpy.Context, sections: dict[str, dict[str, Any]],
             cls = getattr(importlib.import_module(classes[name][0]), classes[name][1])
             values = _node_values(name, sections, names, live)
             if runner and name == 'sfm':
-                values['queue_keyframes'] = 0
+                values['queue_worker'] = False
             nodes[name] = cls(context=context, parameter_overrides=_overrides(values))
     return nodes
 

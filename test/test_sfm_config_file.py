@@ -6,7 +6,7 @@ from absscale_ros.core import sfm
 import pytest
 
 NODE_ONLY = {'pair_depth', 'seed', 'frame_id', 'use_tracked_steps', 'qos',
-             'queue_keyframes', 'adjust_at_end'}  # not SfmConfig's
+             'queue_keyframes', 'queue_worker', 'adjust_at_end'}  # not SfmConfig's
 
 
 def _names(cfg: sfm.SfmConfig) -> set[str]:

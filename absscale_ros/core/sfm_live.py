@@ -44,6 +44,11 @@ class FeaturePrefetch:
             while len(self._pending) > self._keep:
                 self._pending.pop(min(self._pending))[1].cancel()
 
+    def pending(self, stamp_ns: int) -> 'Future[Any] | None':
+        """The features' future of a prefetched keyframe (left in place), or None."""
+        with self._lock:
+            return self._pending.get(stamp_ns, (None, None))[1]
+
     def take(self, stamp_ns: int) -> tuple[Any, 'Future[Any] | None']:
         """The decoded image and its features' future, or (None, None) if not prefetched."""
         with self._lock:

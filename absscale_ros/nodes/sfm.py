@@ -49,7 +49,8 @@ class SfmNode(Node):
                        for prefix, field in sfm.PARAM_PREFIXES.items()})
         p = {x.name: x.value for x in self.declare_parameters('', [
             ('pair_depth', 10), ('seed', 0), ('frame_id', 'map'), ('use_tracked_steps', True),
-            ('qos', 'reliable'), ('queue_keyframes', 0), ('adjust_at_end', True)])}
+            ('qos', 'reliable'), ('queue_keyframes', 0), ('queue_worker', True),
+            ('adjust_at_end', True)])}
         self.session = sfm_session.SfmSession(replace(cfg, **values), p['seed'], time.perf_counter)
         self._frame, self._camera = p['frame_id'], None
         self._pubs = {name: self.create_publisher(cls, f'/absscale/{name}', common.RELIABLE)
@@ -68,9 +69,15 @@ class SfmNode(Node):
         # another process) meanwhile; at most ``queue_keyframes`` wait (then the callback waits
         # for the oldest). Each is acknowledged again with its outputs once published, and the
         # replay has drained only when their subscribers acknowledged those too.
+        # Without ``queue_worker`` (the runner's one process) they are mapped on the executor's
+        # thread instead, each once its features are detected (``sfm_inputs.ExecutorQueue``).
         self._queued: deque['Future[list[str]]'] = deque()
         self._queue_depth = p['queue_keyframes'] if self._updater is None else 0
-        self._queue = ThreadPoolExecutor(1, 'sfm_queue') if self._queue_depth > 0 else None
+        queued = self._queue_depth > 0
+        self._queue = ThreadPoolExecutor(1, 'sfm_queue') if queued and p['queue_worker'] \
+            else None
+        self._on_main = sfm_inputs.ExecutorQueue(self, group) \
+            if queued and not p['queue_worker'] else None
         self.live: sfm_live.LiveUpdates[Item] | None = None if self._updater is None else \
             sfm_live.LiveUpdates(self._updater.submit, time.monotonic_ns,
                                  lambda item: self._process(*item), self.session.adjust_if_due,
@@ -115,16 +122,25 @@ class SfmNode(Node):
 
     def _handle(self, item: Item) -> list[str] | None:
         """A paired keyframe: processed now (its outputs), or handed to the live worker."""
-        if self._queue is not None:
+        if self._queue is not None or self._on_main is not None:
             while self._queued and (self._queued[0].done() or
                                     len(self._queued) >= self._queue_depth):
-                self._queued.popleft().result()  # an update's exception is raised here
-            self._queued.append(self._queue.submit(self._process_queued, item))
+                self._result(self._queued.popleft())  # an update's exception is raised here
+            self._queued.append(
+                self._queue.submit(self._process_queued, item) if self._queue is not None else
+                self._on_main.submit(self._prefetch.pending(conversions.stamp_to_ns(
+                    item[0].header.stamp)), self._process_queued, item))
             return [replay.DEFERRED]  # taken: the replay goes on, and waits for it at the end
         if self.live is None:
             return self._process(*item)
         self.live.offer(conversions.stamp_to_ns(item[0].header.stamp), item)
         return None
+
+    def _result(self, queued: 'Future[list[str]]') -> list[str]:
+        """A queued keyframe's outputs, once it is mapped (on this thread, if queued here)."""
+        if self._on_main is not None:
+            self._on_main.run_through(queued)
+        return queued.result()
 
     def _process_queued(self, item: Item) -> list[str]:
         """On the queue's worker: map one keyframe, then acknowledge what it published."""
@@ -164,7 +180,7 @@ class SfmNode(Node):
         outputs: list[str] = []
         try:
             while self._queued:
-                self._queued.popleft().result()  # the queued keyframes first
+                self._result(self._queued.popleft())  # the queued keyframes first
             if self.session.finish() is not None:
                 outputs = self._publish_map(conversions.stamp_to_ns(msg.stamp))
         except Exception as err:  # noqa: BLE001 - the run must still end, not wait 300 s
@@ -186,6 +202,9 @@ class SfmNode(Node):
     def report(self, full_rms: bool = True) -> dict[str, Any]:
         """See ``SfmSession.report``; live, with the skipped keyframes and the timeline."""
         if full_rms:  # the final report: after the queued updates (called from outside them)
+            if self._on_main is not None:
+                for queued in list(self._queued):
+                    self._on_main.run_through(queued)
             wait(list(self._queued))
         live = self.live
         return self.session.report(full_rms, live.skipped if live else 0, live and {

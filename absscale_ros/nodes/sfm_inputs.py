@@ -1,7 +1,10 @@
 """
 The sfm node's message plumbing: its three keyframe inputs paired by stamp (every input that
-never pairs acknowledged, so a lossless replay goes on), and the map's output messages.
+never pairs acknowledged, so a lossless replay goes on), the queue of keyframes mapped on the
+executor's thread, and the map's output messages.
 """
+from collections import deque
+from concurrent.futures import Future
 from typing import Any, Callable
 
 from absscale_ros import conversions
@@ -12,6 +15,9 @@ from rclpy.node import Node
 from sensor_msgs.msg import Image, PointCloud2
 
 Item = tuple[Image, PointCloud2, TransformStamped | None]
+# How often the executor queue looks whether its oldest keyframe's features are detected,
+# while it holds one (the feature worker cannot wake the events executor: no guard conditions).
+READY_PERIOD_S = 0.002
 
 
 class KeyframeInputs:
@@ -89,6 +95,50 @@ class KeyframeInputs:
         """A queued keyframe's second acknowledgement: the topics published for it (its
         inputs were acknowledged with ``replay.DEFERRED``)."""
         self._ack.ack(stamp, replay.DEFERRED, outputs)
+
+
+class ExecutorQueue:
+    """
+    Calls run in order on the executor's thread, each once its ``ready`` future (a keyframe's
+    features, detected ahead on the feature worker) is done; the futures they return hold
+    their results or exceptions, as a worker's would. In one process (the runner) a keyframe
+    mapped at once waited there for its features (~85 ms of SIFT on the 60 s bag, the frame
+    nodes idle meanwhile); queued, the frames after it go on while they are detected. A worker
+    thread for the mapping itself would only contend with the frame nodes for the GIL.
+    """
+
+    def __init__(self, node: Node, group: Any) -> None:
+        self._items: deque[tuple[Future[Any], Future[Any] | None, Callable[..., Any],
+                                 tuple[Any, ...]]] = deque()
+        self._timer = node.create_timer(READY_PERIOD_S, self._run_ready, callback_group=group)
+        self._timer.cancel()
+
+    def submit(self, ready: 'Future[Any] | None', fn: Callable[..., Any],
+               *args: Any) -> 'Future[Any]':
+        """Run ``fn(*args)`` after the calls before it, once ``ready`` (if any) is done."""
+        done: Future[Any] = Future()
+        self._items.append((done, ready, fn, args))
+        if self._timer.is_canceled():
+            self._timer.reset()
+        return done
+
+    def run_through(self, done: 'Future[Any]') -> None:
+        """Run the queued calls up to the one of ``done`` now, ready or not."""
+        while not done.done() and self._items:
+            self._run_one()
+
+    def _run_ready(self) -> None:
+        while self._items and (self._items[0][1] is None or self._items[0][1].done()):
+            self._run_one()
+        if not self._items:
+            self._timer.cancel()
+
+    def _run_one(self) -> None:
+        done, _, fn, args = self._items.popleft()
+        try:
+            done.set_result(fn(*args))
+        except Exception as err:  # noqa: BLE001 - raised where the result is asked for
+            done.set_exception(err)
 
 
 def map_messages(session: sfm_session.SfmSession, stamp_ns: int,

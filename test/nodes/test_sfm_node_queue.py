@@ -3,17 +3,21 @@ The sfm's keyframe queue (``queue_keyframes``) under a lossless replay: queued k
 acknowledged as DEFERRED and again once mapped, so the replay is drained only when every
 keyframe's outputs were handled downstream, however slow the consumer.
 """
+from concurrent.futures import Future
 from pathlib import Path
 import sys
 import threading
 import time
 
 from absscale_ros import bagio, conversions
+from absscale_ros.nodes import sfm_inputs
 from absscale_ros.nodes.bag_replay import BagReplayNode
 from absscale_ros.nodes.sfm import SfmNode
 from absscale_ros.nodes.step_sink import StepSinkNode
 import numpy as np
+import pytest
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.serialization import serialize_message
 from ros_helpers import spin_until
@@ -52,11 +56,13 @@ def _keyframe_bag(path: Path, seq: sfm_scenes.Sequence) -> int:
     return len(stamps)
 
 
+@pytest.mark.parametrize('worker', [True, False])  # False: mapped on the executor's thread
 def test_queued_keyframes_drain_only_once_a_slow_consumer_handled_their_outputs(
-        context, tmp_path: Path) -> None:
+        context, tmp_path: Path, worker: bool) -> None:
     bag = tmp_path / 'keyframes.mcap'
     count = _keyframe_bag(bag, sfm_scenes.make_sequence('indoor_paper', 1, count=6))
-    sfm = SfmNode(context=context, parameter_overrides=[Parameter('queue_keyframes', value=2)])
+    sfm = SfmNode(context=context, parameter_overrides=[Parameter('queue_keyframes', value=2),
+                                                        Parameter('queue_worker', value=worker)])
     sink = SlowSink(context=context, parameter_overrides=[
         Parameter('topic', value='/absscale/target_points'),
         Parameter('msgtype', value='sensor_msgs/msg/PointCloud2')])
@@ -85,7 +91,8 @@ def test_queued_keyframes_drain_only_once_a_slow_consumer_handled_their_outputs(
         assert replay.steps == count and replay.timeouts == 0
         # The queue was on. Not every step need be deferred: the worker (GTSAM holds the GIL)
         # can map a keyframe and acknowledge it before the callback that queued it does.
-        assert replay.steps_deferred >= 1
+        # On the executor's thread every keyframe is mapped after the callback that queued it.
+        assert replay.steps_deferred >= 1 if worker else replay.steps_deferred == count
         assert sfm.report()['keyframes_registered'] == count
     finally:
         spinning.join()
@@ -93,3 +100,26 @@ def test_queued_keyframes_drain_only_once_a_slow_consumer_handled_their_outputs(
         executor.shutdown()
         for node in (sfm, sink, replay):
             node.destroy_node()
+
+
+def test_the_executor_queue_runs_its_calls_in_order_each_once_ready(context) -> None:
+    node = Node('queue_test', context=context)
+    queue = sfm_inputs.ExecutorQueue(node, None)
+    features, ran = Future(), []
+    first = queue.submit(features, ran.append, 1)
+    second = queue.submit(None, ran.append, 2)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    try:
+        spin_until(executor, lambda: False, timeout_s=0.2)
+        assert ran == [] and not first.done()  # the second waits behind the first
+        features.set_result(None)  # as the feature worker does
+        assert spin_until(executor, second.done, timeout_s=5.0)
+        assert ran == [1, 2]
+        failing = queue.submit(None, lambda: 1 / 0)
+        later = queue.submit(Future(), ran.append, 3)
+        queue.run_through(later)  # the end of the bag: now, ready or not
+        assert isinstance(failing.exception(), ZeroDivisionError) and ran == [1, 2, 3]
+    finally:
+        executor.shutdown()
+        node.destroy_node()
