@@ -26,6 +26,18 @@ def test_a_rectangle_that_fails_in_most_frames_is_refuted_when_it_passes():
     assert not history.refuted(elsewhere, 20, 1)
 
 
+def test_of_several_outlines_in_a_frame_the_smallest_error_counts():
+    # Another mask's outline of the same rectangle passes in every frame: the rectangle is
+    # not refuted, whichever of its outlines was measured first.
+    for order in (1, -1):
+        history = sheet_track.SheetHistory()
+        for failing in (1.3, 1.4, 1.2):
+            history.next_frame(20)
+            for quad, ratio in [(SQUARE, failing), (SQUARE + 0.5, 0.6)][::order]:
+                history.note(quad, ratio)
+        assert not history.refuted(SQUARE, 20, 2), order
+
+
 def test_only_the_window_is_kept():
     history = sheet_track.SheetHistory()
     for ratio in [1.5] * 30 + [0.5] * 3:  # refuted long ago, passing in the last frames
