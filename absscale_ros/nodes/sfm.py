@@ -121,7 +121,8 @@ class SfmNode(Node):
                 pass  # _process says why
 
     def _handle(self, item: Item) -> list[str] | None:
-        """A paired keyframe: processed now (its outputs), or handed to the live worker."""
+        """A paired keyframe: queued (DEFERRED), processed now (its outputs), or handed to the
+        live worker (None)."""
         if self._queue is not None or self._on_main is not None:
             while self._queued and (self._queued[0].done() or
                                     len(self._queued) >= self._queue_depth):
@@ -143,7 +144,8 @@ class SfmNode(Node):
         return queued.result()
 
     def _process_queued(self, item: Item) -> list[str]:
-        """On the queue's worker: map one keyframe, then acknowledge what it published."""
+        """Queued (on the worker, or on the executor's thread without ``queue_worker``): map
+        one keyframe, then acknowledge what it published."""
         outputs: list[str] = []
         try:
             outputs = self._process(*item)
