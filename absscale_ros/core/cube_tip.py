@@ -47,15 +47,7 @@ def tip_faces(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array, Ar
     :param max_ramp_px: a real side ramping (25-75 %) over more (motion blur) gives none.
     """
     h, w = image_bgr.shape[:2]
-    cands = []  # (rough index, cut side, border line)
-    for f, ((_, _, quad), face) in enumerate(zip(rough, refined)):
-        cut = border_side(quad, w, h) if face is None or face.cut >= 0 else None
-        if cut is None:
-            continue
-        c = cut[0]
-        length = np.hypot(*(quad[[1, 2, 3, 0]] - quad).T)
-        if length[(c + 2) % 4] <= max_frac * min(length[(c + 1) % 4], length[(c + 3) % 4]):
-            cands.append((f, c, cut[1]))
+    cands = _candidates(rough, refined, border_side, max_frac, w, h)
     if not cands:
         return []
     # Per candidate its two real sides (c + 1, c + 3), refined as a face's are.
@@ -91,3 +83,21 @@ def tip_faces(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array, Ar
         sup[(c + 1) % 4], sup[(c + 3) % 4] = support[pair]
         out.append((f, make(rough[f][0], corners, side_lines, sup, cut=c, tip=True)))
     return out
+
+
+def _candidates(rough: list[tuple[str, Array, Array]], refined: list['Face | None'],
+                border_side: Callable[[Array, int, int], tuple[int, Array] | None],
+                max_frac: float, w: int, h: int) -> list[tuple[int, int, Array]]:
+    """(rough index, cut side, the border's line) of the rough faces refined as none or as a
+    cut face whose rough quad has one side along the border and, opposite, a side at most
+    ``max_frac`` of the shorter side leaving it (the rounding's; see ``tip_faces``)."""
+    cands = []
+    for f, ((_, _, quad), face) in enumerate(zip(rough, refined)):
+        cut = border_side(quad, w, h) if face is None or face.cut >= 0 else None
+        if cut is None:
+            continue
+        c = cut[0]
+        length = np.hypot(*(quad[[1, 2, 3, 0]] - quad).T)
+        if length[(c + 2) % 4] <= max_frac * min(length[(c + 1) % 4], length[(c + 3) % 4]):
+            cands.append((f, c, cut[1]))
+    return cands
