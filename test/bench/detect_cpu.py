@@ -77,10 +77,12 @@ def main() -> int:
                     for target in (sheet, 'cube', 'auto'):
                         for name, mod in order if k % 2 else order[::-1]:
                             cfg = mod.DetectConfig(target=target)
-                            t0 = time.process_time()
-                            kwargs = {k: v for k, v in (
+                            # (only what the tree has: a base tree may lack either)
+                            kwargs = {key: state for key, state in (
                                 ('tracker', trackers[(name, target)]),
-                                ('sheet_history', histories[(name, target)])) if v is not None}
+                                ('sheet_history', histories[(name, target)]))
+                                if state is not None}
+                            t0 = time.process_time()
                             mod.detect(img, cfg, K, **kwargs)
                             kind = target if target in ('cube', 'auto') else 'sheet'
                             times.setdefault((name, kind), []).append(
