@@ -195,8 +195,12 @@ class SheetConfig:
             raise ValueError(f'split_max_parts must be >= 1, got {self.split_max_parts}')
         if self.max_shade < 1.0:
             raise ValueError(f'max_shade must be >= 1, got {self.max_shade}')
-        if self.aspect_history < 0 or self.aspect_history_min < 1:
-            raise ValueError('need aspect_history >= 0 and aspect_history_min >= 1')
+        # (a window shorter than aspect_history_min frames could never refute: silently off)
+        if self.aspect_history < 0 or self.aspect_history_min < 1 or \
+                0 < self.aspect_history < self.aspect_history_min:
+            raise ValueError('need aspect_history >= 0 and 1 <= aspect_history_min <= '
+                             f'aspect_history (or 0), got {self.aspect_history}, '
+                             f'{self.aspect_history_min}')
         self.models()  # raises ValueError on an unknown sheet
 
     def model(self) -> targets.SheetModel:

@@ -532,6 +532,8 @@ def test_bad_config_raises():
     with pytest.raises(ValueError):
         detect_cube.CubeConfig(roundness_min=0.9, roundness_max=0.5)
     for bad in ({'line_work_max_side_px': 0}, {'content_work_max_side_px': 0},
-                {'content_close_px': -1}):  # not a cv2.resize error in the first frame
+                {'content_close_px': -1},  # not a cv2.resize error in the first frame
+                {'aspect_history': 1, 'aspect_history_min': 2}):  # would never refute
         with pytest.raises(ValueError):
             detect_sheet.SheetConfig(**bad)
+    detect_sheet.SheetConfig(aspect_history=0, aspect_history_min=2)  # off: min unused
