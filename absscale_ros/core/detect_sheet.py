@@ -305,14 +305,14 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
         more = sheet_candidates.colour_quads(work, cands.regions, cfg) + \
             sheet_candidates.detached_quads(work, cfg) + sheet_candidates.chroma_quads(work, cfg)
         _accept_quads(image_bgr, [lines.full_px(q, scale) for q in more], band, cfg, K, found,
-                      dist)
+                      dist, history=history)
     for closed in (False, True):
         if found or not cfg.line_candidates or (closed and cfg.content_close_px <= 0):
             break
         line_quads = _line_candidates(image_bgr, cfg, closed)
         if line_quads:  # (refined on the image as it is)
             _accept_quads(image_bgr, [q for q, _ in line_quads], line_quads[0][1], cfg, K, found,
-                          dist)
+                          dist, history=history)
     if not found and cfg.blur_band_frac > 0.0:
         _accept_blurred(image_bgr, unfound, band, cfg, K, found, dist, history)
     if not found:
