@@ -368,7 +368,7 @@ def _without_strokes(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig
 # its parts), (4,) vertex scores or None).
 Found = tuple[float, Array, Array | tuple[Array, ...], Array | None]
 Refined = sides.Refined
-# and the seen outline (and, from a stub, (4,) vertex score factors)
+# and the seen outline
 Refined6 = tuple[Array, ...]
 
 
@@ -603,7 +603,7 @@ def _stub_path(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candidates.
     aspect = tuple(m.aspect for m in cfg.models())
     return _Hidden(
         [hyps],  # one stub sheet at most: a fallback
-        lambda hyp, out: sheet_stub.finish(hyp, out, band, K_, aspect, image_bgr=image_bgr),
+        lambda hyp, out: sheet_stub.finish(hyp, out, band, K_, aspect),
         rough_aspect=False, checked=sheet_stub.CHECKED, strict_cover=True,
         screen=lambda hyp, out: sheet_stub.finish(
             hyp, out, band, K_, aspect, sheet_stub.SCREEN_SLACK) is not None)
@@ -818,13 +818,9 @@ def _accept_partial(image_bgr: npt.NDArray[np.uint8], paths: list[_Hidden], band
                     continue
                 support = float(out[1].mean())
                 vs = np.array([support] * 3 + [0.5 * support * float(hyp.seen_frac.min())])
-                # A corner placed by the aspect: scored lower, and ranked after corners seen.
-                factors = out[6] if len(out) > 6 and not path.seen_out else None
-                rank = support * float(factors.min()) if factors is not None else support
-                vs = vs * factors if factors is not None else vs
-                if best is None or rank > best[0]:
-                    best = (rank, (float(vs.mean()), out[0],
-                                   out[7] if path.seen_out else out[5], vs))
+                if best is None or support > best[0]:
+                    best = (support, (float(vs.mean()), out[0],
+                                      out[7] if path.seen_out else out[5], vs))
             if best is not None and all(np.abs(best[1][1] - f[1]).max() > 4.0 for f in found):
                 found.append(best[1])
 

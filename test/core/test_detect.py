@@ -123,9 +123,6 @@ def test_sheet_with_one_hidden_corner_extrapolated_and_marked(box):
     assert detect_sheet.detect_sheets(img, off) == []
 
 
-# (Not ((-0.4, 0.3, -0.6), 1, 1.0): there the box's edge through one corner and its corner on
-# the far side leave a clean quadrilateral of three sides and the box's edge, which the
-# aspect-placed corner also fits; the detector reports that one. See the issue 4 report.)
 @pytest.mark.parametrize('rvec,hidden,seen_px', [((0.5, -0.2, 0.3), 2, 15.0),
                                                  ((-0.4, 0.3, -0.6), 1, 15.0),
                                                  ((0.5, -0.2, 0.3), 2, 1.0)])
@@ -133,8 +130,9 @@ def test_sheet_with_corner_and_nearly_all_of_one_side_hidden(rvec, hidden, seen_
     """
     A box covers one corner and all but 15 px of one side next to it: the three seen corners
     come from the sides' edges, the hidden one from the intrinsics (``sheet_stub``). With
-    1 px seen, the box's edge runs through the third corner: that corner is where the sheet's
-    aspect puts it on its whole side, and scores as extrapolated too.
+    1 px seen, the box's edge runs through the third corner: no sheet (that corner would be
+    the sheet's aspect's alone, a quarter of the side or more off per pixel of side line;
+    on rendered pages under a box 0.9 % of the side off in the median, up to 6 %).
     """
     true_px = st.project_sheet(rvec, (0.0, 0.0, 0.9))
     prev, corner, nxt = (true_px[(hidden + d) % 4] for d in (-1, 0, 1))
@@ -147,14 +145,16 @@ def test_sheet_with_corner_and_nearly_all_of_one_side_hidden(rvec, hidden, seen_
         st.fill(img, box, (40, 70, 120))
     img = st.render_sheet(_rng(13), true_px, extra=extra)
     dets = detect_sheet.detect_sheets(img, detect_sheet.SheetConfig(sheet='a4'), st.K)
+    if seen_px < 2.0:
+        assert dets == []
+        return
     assert len(dets) == 1
     err, rel = _sheet_errors(dets[0], true_px)
-    placed = [hidden] if seen_px > 2.0 else [hidden, (hidden - 1) % 4]
-    assert np.delete(err, placed).max() < 1.0  # seen corners as exact as a whole sheet's
-    assert rel[hidden] < 0.02 and (rel[placed[1:]] < 0.01).all()
+    assert np.delete(err, hidden).max() < 1.0  # seen corners as exact as a whole sheet's
+    assert rel[hidden] < 0.02
     d = dets[0]
-    far = [int(np.argmin(np.hypot(*(d.vertices_px - true_px[i]).T))) for i in placed]
-    assert d.scores()[far].max() <= 0.5 < np.delete(d.scores(), far).min()
+    far = int(np.argmin(np.hypot(*(d.vertices_px - true_px[hidden]).T)))
+    assert d.scores()[far] <= 0.5 < np.delete(d.scores(), far).min()
     # The pentagon rule alone cannot: one side at the hidden corner is seen over 15 px only.
     off = detect_sheet.SheetConfig(sheet='a4', stub_px=0.0)
     assert detect_sheet.detect_sheets(img, off, st.K) == []
