@@ -7,6 +7,7 @@ to all the edges meeting there, as the paper does when three edges do not meet e
 import dataclasses
 from typing import TYPE_CHECKING
 
+import cv2
 import numpy as np
 import numpy.typing as npt
 
@@ -105,8 +106,8 @@ def _explained(faces: list['Face'], vertices: Array, Ks: list[Array], tol_frac: 
 
 
 def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks: list[Array],
-                   shape: tuple[int, ...], shape_tol_frac: float, loose_ramp_px: float = 0.0
-                   ) -> targets.TargetDetection | None:
+                   shape: tuple[int, ...], shape_tol_frac: float, loose_ramp_px: float = 0.0,
+                   outline: list[float | None] | None = None) -> targets.TargetDetection | None:
     """
     Assemble vertices (least-squares points of meeting edges), ids and edges of a cube.
 
@@ -115,7 +116,8 @@ def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks:
     that no cube pose explains (``cube_geometry``) and corners where the image border cuts a
     face are left out, and faces left with none of their corners; None when no vertex where
     two colours meet is left. When the sharp poses leave none, cut faces whose sides ramp
-    over at most ``loose_ramp_px`` pose the cube too (``_explained``).
+    over at most ``loose_ramp_px`` pose the cube too (``_explained``). Appends to ``outline``
+    the area px of the posed cube's outline within the image (``posed_area``) of a detection.
     """
     # (nor the two corners where the image border cuts a face: the border's, not the cube's,
     # nor a corner beyond it)
@@ -167,6 +169,8 @@ def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks:
         for k, v in enumerate(same[np.argsort(ang[same])]):
             ids[v] = targets.cube_vertex_id(int(m), k)
     score = float(np.mean([f.supports.mean() for f in faces]))
+    if outline is not None:
+        outline.append(None if proj is None else posed_area(proj[0], shape))
     # A strip's ends follow the cube's edges where a believed pose puts them.
     # A face joined across a post in front (``Face.seen``) shows its pieces only.
     polygons = tuple((f.colour, cube_geometry.complete_strip(*proj, f.corners_px)
@@ -176,3 +180,19 @@ def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks:
         target_type='cube', name='cube', vertices_px=vertices, vertex_ids=ids,
         edges=np.array(sorted(edges), dtype=np.int64).reshape(-1, 2), polygons=polygons,
         score=score)
+
+
+def posed_area(proj: Array, shape: tuple[int, ...]) -> float:
+    """
+    Return the area px of the outline of the projected cube ``proj`` (8, 2) px within the
+    image: the cube's visible area, posts in front aside. Unlike the sum of its face
+    polygons, no box of a face's colour behind the cube (joined with that face, or taken for
+    a face seen edge-on) adds to it: its corners are where no pose puts the cube's.
+    """
+    h, w = shape[:2]
+    image = np.array([[0, 0], [w, 0], [w, h], [0, h]], np.float32)
+    try:
+        return float(cv2.intersectConvexConvex(cv2.convexHull(proj.astype(np.float32)),
+                                               image)[0])
+    except cv2.error:  # a degenerate outline
+        return 0.0

@@ -45,7 +45,11 @@ class CubeConfig:
     Hue ranges are in degrees [0, 360) and wrap when ``lo > hi`` (red). The paper's Fig. 2
     colours are not given numerically; the ranges are wide enough for shade and sun.
 
-    :param min_area_frac: smallest cube area (its visible faces) over image area (paper: 0.005).
+    :param min_area_frac: smallest cube area (its visible faces) over image area (paper: 0.005):
+        the sum of its face polygons ...
+    :param outline_excess_frac: ... or the outline of the posed cube when that sum exceeds it
+        by more than this fraction (a region not the cube's counted; the pose's own error on
+        cubes near ``min_area_frac``: within 3-9 %).
     :param min_face_area_frac: smallest area of one face over image area: a face seen edge-on
         is far smaller than the cube it belongs to.
     :param roundness_min: lower roundness bound, eq. 1 (paper: 0.1).
@@ -124,6 +128,7 @@ class CubeConfig:
     val_min: float = 0.12
     min_area_frac: float = 0.005
     min_face_area_frac: float = 0.0003
+    outline_excess_frac: float = 0.1
     roundness_min: float = 0.1
     roundness_max: float = 0.85
     min_solidity: float = 0.9
@@ -162,6 +167,8 @@ class CubeConfig:
                 raise ValueError(f'{name} must be degrees in [0, 360), got {(lo, hi)}')
         if not 0.0 < self.min_area_frac < 1.0:
             raise ValueError(f'min_area_frac must be in (0, 1), got {self.min_area_frac}')
+        if self.outline_excess_frac < 0.0:
+            raise ValueError('outline_excess_frac must be >= 0')
         if not 0.0 <= self.roundness_min < self.roundness_max <= 1.0:
             raise ValueError('need 0 <= roundness_min < roundness_max <= 1')
         if not 0.0 <= self.split_canny[0] <= self.split_canny[1]:
@@ -811,12 +818,20 @@ def _cubes(image_bgr: npt.NDArray[np.uint8], faces: list[Face], cfg: CubeConfig,
         min_area = cfg.min_area_frac * image_bgr.shape[0] * image_bgr.shape[1]
         if area < min_area and small is None:
             continue  # the paper's area test, on the whole cube
+        outline: list[float | None] = []
         det = cube_assembly.cube_detection(
             [faces[f] for f in members], [labels[4 * f:4 * f + 4] for f in members],
-            Ks, image_bgr.shape, cfg.shape_tol_frac, cfg.cut_loose_ramp_px)
-        if det is not None and area < min_area and small is not None:
-            small.append((det, area / min_area))
-        elif det is not None:
+            Ks, image_bgr.shape, cfg.shape_tol_frac, cfg.cut_loose_ramp_px, outline)
+        if det is None:
+            continue
+        if outline[0] is not None and area > (1.0 + cfg.outline_excess_frac) * outline[0]:
+            # A box of a face's colour behind the cube, joined with that face or taken for
+            # one seen edge-on, adds to the faces' sum but not to the posed cube's outline.
+            area = outline[0]
+        if area < min_area:
+            if small is not None:
+                small.append((det, area / min_area))
+        else:
             out.append(det)
     out.sort(key=lambda d: -d.score)
     return out
