@@ -70,3 +70,22 @@ def grazing_keyframes(count: int = 5, seed: int = 3) -> tuple:
     start = target + np.array([-0.2, -0.7, 0.35])
     return _rendered([_look_at(start + [0.08 * k, 0.0, 0.0], target + [0.0, -0.1, 0.0])
                       for k in range(count)], seed)
+
+
+def _pose(rows: list[list[float]]) -> np.ndarray:
+    """A 4x4 T_world_cam from 3x4 rows rounded to 4 digits (rotation made orthonormal again)."""
+    T = np.eye(4)
+    T[:3] = rows
+    U, _, Vt = np.linalg.svd(T[:3, :3])
+    T[:3, :3] = U @ Vt
+    return T
+
+
+@functools.lru_cache(maxsize=1)
+def wide_near_pair() -> tuple:
+    """Two keyframes of indoor seed 64's walk (its 15th and 10th, true poses) 0.8 m apart,
+    0.35 m of it backwards, 1-4 m from the desk: disparities of 100-460 px at 640 px."""
+    return _rendered([_pose([[0.6398, -0.4609, 0.615, 2.8156], [-0.768, -0.413, 0.4895, 4.5358],
+                             [0.0284, -0.7855, -0.6182, 1.5707]]),
+                      _pose([[0.8904, -0.1844, 0.4161, 2.9281], [-0.4542, -0.4187, 0.7864, 3.7235],
+                             [0.0292, -0.8892, -0.4565, 1.6083]])], 64)

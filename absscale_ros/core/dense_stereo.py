@@ -4,7 +4,8 @@ Depth of one keyframe from a second one: pair choice, rectification, semi-global
 The two views are rectified with their known (metric) relative pose, so that OpenCV's
 StereoSGBM searches along image rows; its built-in left-right check (``disp12MaxDiff``) drops
 occluded and ambiguous pixels. The disparity range comes from a few tracked corners of the
-rectified pair, so neither the scene depth nor the baseline has to be known beforehand.
+rectified pair (or matched ORB features where tracking fails), so neither the scene depth nor
+the baseline has to be known beforehand.
 Depth is kept in the *rectified* reference camera (its rotation ``R_rect`` and intrinsics
 ``K_rect`` go with it), which is where other keyframes' points are checked against it.
 """
@@ -41,6 +42,8 @@ class StereoConfig:
     max_canvas_grow: float = 1.5  # rectified image at most this much larger than the keyframe
     widen_left: bool = True  # widen the canvas by SGBM's blind left margin (disparity range)
     min_texture: float = 0.0  # grey-level deviation in a block below this: no depth (0: keep)
+    match_features: int = 800  # ORB features matched for the disparity range when tracking
+    # fails (0: no fallback, range 0-96 px)
 
 
 @dataclass
@@ -106,19 +109,37 @@ def pair_quality(T_world_ref: FloatArray, T_world_other: FloatArray, depth_m: fl
 
 
 def _disparity_range(left: np.ndarray, right: np.ndarray, cfg: StereoConfig) -> tuple[int, int]:
-    """(minDisparity, numDisparities) from corners tracked along the rectified rows."""
+    """
+    (minDisparity, numDisparities) from corners tracked along the rectified rows, or, when
+    fewer than 10 track (optical flow loses disparities beyond ~100 px: a near desk from a
+    wide pair), from descriptor matches on the same rows.
+    """
     corners = cv2.goodFeaturesToTrack(left, 400, 0.01, 8)
     lo, hi = 0.0, 64.0
+    d = np.zeros(0)
     if corners is not None:
         moved, ok, _ = cv2.calcOpticalFlowPyrLK(left, right, corners, None, winSize=(21, 21),
                                                 maxLevel=4)
-        d = (corners - moved).reshape(-1, 2)
-        good = (ok.ravel() == 1) & (np.abs(d[:, 1]) < 1.5)
-        if good.sum() >= 10:
-            lo, hi = np.percentile(d[good, 0], [2, 98])
+        flow = (corners - moved).reshape(-1, 2)
+        d = flow[(ok.ravel() == 1) & (np.abs(flow[:, 1]) < 1.5), 0]
+    if len(d) < 10 and cfg.match_features > 0:
+        d = _matched_disparities(left, right, cfg.match_features)
+    if len(d) >= 10:
+        lo, hi = np.percentile(d, [2, 98])
     lo = max(0, int(np.floor(lo * 0.8 - 4)))
     width = int(np.ceil((hi * 1.25 + 8 - lo) / 16.0)) * 16
     return lo, int(np.clip(width, 32, cfg.max_disparities))
+
+
+def _matched_disparities(left: np.ndarray, right: np.ndarray, features: int) -> FloatArray:
+    """Disparities of ORB matches (cross-checked) that lie on the same rectified row."""
+    orb = cv2.ORB_create(features, fastThreshold=10)
+    (k1, d1), (k2, d2) = (orb.detectAndCompute(g, None) for g in (left, right))
+    if d1 is None or d2 is None:
+        return np.zeros(0)
+    matches = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True).match(d1, d2)
+    flow = np.array([np.subtract(k1[m.queryIdx].pt, k2[m.trainIdx].pt) for m in matches])
+    return flow[np.abs(flow[:, 1]) < 1.5, 0] if len(flow) else np.zeros(0)
 
 
 def rectifying_rotations(T_other_ref: FloatArray) -> tuple[FloatArray, FloatArray, float]:
