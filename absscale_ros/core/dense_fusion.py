@@ -47,6 +47,7 @@ class FusionConfig:
     both_sides: bool = True  # a partner on each side of a keyframe (two depth maps), else one
     recompute_deg: float = 0.2  # pair rotation / baseline direction moved more: new depth
     average: bool = True  # a kept point is the mean of the depth maps that agree with it
+    sweep_average: bool = False  # ... the sweeps' included for a pair's point (else they vote)
     outlier_neighbours: int = 16  # statistical outlier removal: neighbours considered
     outlier_std: float = 2.0  # ... and the mean-distance threshold, in standard deviations
     # (0: no statistical removal)
@@ -422,7 +423,8 @@ class DenseFusion:
                 # The other map's estimate of the same surface point, along its own ray:
                 # averaging independent pairs shrinks SGBM's sub-pixel noise. A coarser
                 # sweep only votes for a pair's points (those still short of votes).
-                mean = self.cfg.average and (side >= SWEEP or not swept)
+                mean = self.cfg.average and (side >= SWEEP or not swept
+                                             or self.cfg.sweep_average)
                 if m is own:
                     continue
                 if mean:
