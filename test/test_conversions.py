@@ -88,7 +88,7 @@ def test_a_frame_is_copied_once_into_its_message() -> None:
     """A 1280x720 frame: one copy into the message (the setter of a message made without
     check_fields copies the data array again), and the same bytes on the wire."""
     import tracemalloc
-    from rclpy.serialization import serialize_message
+    from rclpy.serialization import deserialize_message, serialize_message
     image = random_image('bgr8', 720, 1280)
     tracemalloc.start()
     msg = conversions.array_to_image_msg(image, 'bgr8', stamp_ns=5, frame_id='cam')
@@ -98,7 +98,9 @@ def test_a_frame_is_copied_once_into_its_message() -> None:
     plain = Image(height=720, width=1280, encoding='bgr8', step=3840)
     plain.header = msg.header
     plain.data = image.tobytes()
-    assert serialize_message(msg) == serialize_message(plain)
+    # Compared after a round trip, not byte for byte: the CDR alignment padding after the
+    # encoding string is not written by the serializer, so its bytes vary from call to call.
+    assert deserialize_message(serialize_message(msg), Image) == plain
 
 
 def test_mono16_is_written_little_endian() -> None:
