@@ -855,12 +855,10 @@ def _rough_oks(hyps: list[sheet_partial.Partial], border: bool, rough_aspect: bo
     if K is None or not rough_aspect or len(hyps) < 2:
         return [_rough_ok(h, border, rough_aspect, shape, band, cfg, K, dist) for h in hyps]
     corners = np.array([h.corners for h in hyps])
-    h, w = shape[:2]
-    near = (corners.min(axis=(1, 2)) < band) | (corners[..., 0].max(axis=1) > w - 1 - band) | \
-        (corners[..., 1].max(axis=1) > h - 1 - band)  # (``touches_border``)
     errs = sheet_checks.aspect_errors(corners, cfg, K, dist)
-    return [bool(border or not n) and _rough_aspect_ok(c, shape, band, cfg, K, dist, float(e))
-            for c, n, e in zip(corners, near, errs)]
+    return [(border or not sheet_candidates.touches_border(c, shape, band)) and
+            _rough_aspect_ok(c, shape, band, cfg, K, dist, float(e))
+            for c, e in zip(corners, errs)]
 
 
 def _guess_K(focal_frac: float, shape: tuple[int, ...]) -> Array:
