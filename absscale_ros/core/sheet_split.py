@@ -12,7 +12,7 @@ inside it, not on its middle, which is the box's.
 import numpy as np
 import numpy.typing as npt
 
-from absscale_ros.core import sheet_partial, sheet_stub, sides
+from absscale_ros.core import sheet_partial, sides
 
 Array = npt.NDArray[np.float64]
 SAMPLES = 64  # colour samples along each side
@@ -21,6 +21,8 @@ NARROW_SHOWN = 0.9  # of a side: less shown than this, it is refined where shown
 SPAN = (0.1, 0.9)  # the part of each side sampled, clear of its corners (``shown``)
 _TS = np.linspace(*SPAN, SAMPLES)
 _NEXT = np.array([1, 2, 3, 0])
+GO_ON_CONTRAST = 20.0  # BGR distance below which the colour is the sheet's
+INSIDE_PX = 3.0  # how far inside a side its colour is sampled along it
 
 
 def shown(image_bgr: npt.NDArray[np.uint8], corners: Array, lines_: Array,
@@ -43,7 +45,7 @@ def shown_many(image_bgr: npt.NDArray[np.uint8], corners: Array, lines_: Array,
     h, w = image_bgr.shape[:2]
     ts, ends = _TS, corners[:, _NEXT]
     pts = corners[:, :, None] + ts[None, None, :, None] * (ends - corners)[:, :, None] \
-        - sheet_stub.INSIDE_PX * lines_[:, :, None, :2]
+        - INSIDE_PX * lines_[:, :, None, :2]
     u = np.clip(np.round(pts[..., 0]).astype(int), 0, w - 1)
     v = np.clip(np.round(pts[..., 1]).astype(int), 0, h - 1)
     bgr = image_bgr[v, u].astype(np.float64)  # (M, 4, SAMPLES, 3)
@@ -54,7 +56,7 @@ def shown_many(image_bgr: npt.NDArray[np.uint8], corners: Array, lines_: Array,
         colours = (srt[:, (n - 1) // 2] + srt[:, n // 2]) / 2.0
     d = bgr - colours[:, None, None]
     ok = np.sqrt(d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] + d[..., 2] * d[..., 2]) \
-        < sheet_stub.GO_ON_CONTRAST
+        < GO_ON_CONTRAST
     # The first and the last run of samples showing the sheet (where its edges change): where
     # the first run ends and where the last begins.
     padded = np.zeros(ok.shape[:2] + (SAMPLES + 2,), np.int8)

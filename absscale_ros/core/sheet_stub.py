@@ -29,8 +29,6 @@ SHORT_EDGE = 0.25  # polygon edges shorter than this fraction of a side are a bl
 # catch the whole side's edge.
 CHECKED = np.array([0, 1, 3])
 FINE_BANDS = sheet_partial.FINE_BANDS  # refinement passes after the widest
-GO_ON_CONTRAST = 20.0  # BGR distance below which the colour is the sheet's (``sheet_split``)
-INSIDE_PX = 3.0  # how far inside a side its colour is sampled along it (``sheet_split``)
 SCREEN_SLACK = 3.0  # ``finish``'s slack after the widest pass: half the hypotheses go there
 
 

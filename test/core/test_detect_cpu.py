@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 
 from absscale_ros.core import detect_sheet, lines, sheet_candidates, sheet_checks, sheet_partial, \
-    sheet_split, sheet_stub, sides
+    sheet_split, sides
 
 sys.path.insert(0, str(Path(__file__).parent))
 import synth_targets as st  # noqa: E402
@@ -72,12 +72,12 @@ def _shown_per_side(image_bgr, corners, lines_, colour=None):
     ts = np.linspace(*sheet_split.SPAN, sheet_split.SAMPLES)
     ends = np.roll(corners, -1, axis=0)
     pts = corners[:, None] + ts[None, :, None] * (ends - corners)[:, None] \
-        - sheet_stub.INSIDE_PX * lines_[:, None, :2]
+        - sheet_split.INSIDE_PX * lines_[:, None, :2]
     u = np.clip(np.round(pts[..., 0]).astype(int), 0, w - 1)
     v = np.clip(np.round(pts[..., 1]).astype(int), 0, h - 1)
     bgr = image_bgr[v, u].astype(np.float64)
     colour = np.median(bgr.reshape(-1, 3), axis=0) if colour is None else colour
-    ok = np.linalg.norm(bgr - colour, axis=2) < sheet_stub.GO_ON_CONTRAST
+    ok = np.linalg.norm(bgr - colour, axis=2) < sheet_split.GO_ON_CONTRAST
     runs = np.zeros((4, 2, 2))
     for s in range(4):
         edges = np.flatnonzero(np.diff(np.concatenate([[0], ok[s].astype(int), [0]])))
