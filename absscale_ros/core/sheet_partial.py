@@ -83,9 +83,8 @@ def sharpened(poly: Array) -> Array | None:
     poly = poly.copy()
     while len(poly) > 4:
         n = len(poly)
-        prev = np.arange(-1, n - 1)  # (np.roll's order, indexed: the same values, cheaper)
-        nxt = prev + 2
-        nxt[-1] = 0
+        # (np.roll's order, indexed: the same values, cheaper)
+        prev, nxt = np.arange(n) - 1, (np.arange(n) + 1) % n
         ln = np.hypot(*(poly[nxt] - poly).T)
         short = (ln < BLUNT_PX) & (ln < BLUNT_FRAC * np.minimum(ln[prev], ln[nxt]))
         if not short.any():
