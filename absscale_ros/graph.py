@@ -178,11 +178,14 @@ def start_nodes(context: rclpy.Context, sections: dict[str, dict[str, Any]],
 
 
 def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
-              on_progress: Callable[[Progress], None] | None = None) -> dict[str, Any]:
+              on_progress: Callable[[Progress], None] | None = None,
+              inspect: Callable[[dict[str, Node]], None] | None = None) -> dict[str, Any]:
     """
     Replay ``bag`` through every available node; return the report (a JSON-able dict).
 
     :param config: config name or YAML path (see ``params.find_config``).
+    :param inspect: called with the nodes of this process after the run, before they are
+        destroyed (a bench reads the sfm's map there; nodes in other processes are not in it).
     :raises AbsScaleError: bad bag or config (before any node runs).
     """
     config_path = params.find_config(config)
@@ -252,6 +255,8 @@ def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
         memory: list[list[float]] = []
         wall_s = _spin(executor, replay, monitor, nodes, options, on_progress, memory)
         node_reports = {name: node_report(node) for name, node in nodes.items()}
+        if inspect is not None:
+            inspect(nodes)
         if children is not None:
             node_reports.update(children.stop())
         node_reports = {name: node_reports[name] for name in names if name in node_reports}

@@ -81,6 +81,20 @@ def cloud(m: sfm_map.SfmMap, K: FloatArray,
             np.array([lm.colour_rgb for lm in lms], np.uint8).reshape(-1, 3))
 
 
+def cloud_observations(m: sfm_map.SfmMap, K: FloatArray, cfg: landmark_quality.CloudConfig
+                       ) -> list[tuple[npt.NDArray[np.int64], FloatArray]]:
+    """
+    The observations of each landmark ``cloud`` publishes, in its order: the stamps (ns) of
+    the keyframes that observed it and the (M, 2) undistorted px (for ground-truth benches).
+    """
+    out = []
+    for i in landmark_quality.well_triangulated(m, K, cfg):
+        obs = m.landmarks[i].obs_px
+        out.append((np.array([m.keyframes[k].stamp_ns for k in obs], np.int64),
+                    np.array(list(obs.values()), np.float64).reshape(-1, 2)))
+    return out
+
+
 def path(m: sfm_map.SfmMap) -> tuple[npt.NDArray[np.int64], FloatArray]:
     """
     Keyframe stamps and poses in stamp order.

@@ -4,7 +4,10 @@
 For each simulator bag (with ``BAG.gt.json`` beside it) the whole graph runs losslessly; then
 the factor is compared with the one that best aligns the unscaled keyframe trajectory with the
 true camera centres, and lengths between reconstructed landmarks with the lengths between their
-true points (the paper's Table 3, in mm per metre).
+true points (the paper's Table 3, in mm per metre). A landmark's true point is the surface
+point behind its own observations (``evaluation.observed_truth``, the sfm's map read after the
+run); ``lengths_projected`` keeps the figures against the older truth, the landmark projected
+through the reconstructed keyframes (``evaluation.landmark_truth``).
 """
 import argparse
 import json
@@ -29,10 +32,24 @@ def evaluate_bag(bag: str, config: str | None) -> dict[str, Any]:
     from absscale_ros import graph
     from absscale_ros.sim import groundtruth
     gt = groundtruth.load(f'{bag}.gt.json')
+    seen: dict[str, Any] = {}
     with tempfile.TemporaryDirectory(prefix='bench_scale_') as tmp:
         report = graph.run_graph(bag, config or _scene_config(gt, Path(tmp)),
-                                 graph.RunOptions(mode='step'))
-    return measure(bag, report, _deserialized(report.pop('_latest')), gt)
+                                 graph.RunOptions(mode='step'),
+                                 inspect=lambda nodes: seen.update(_cloud_observations(nodes)))
+    return measure(bag, report, _deserialized(report.pop('_latest')), gt,
+                   observations=seen.get('observations'))
+
+
+def _cloud_observations(nodes: dict[str, Any]) -> dict[str, Any]:
+    """The published landmarks' observations from the sfm node's map ({} without a map)."""
+    from absscale_ros.core import sfm_outputs
+    session = getattr(nodes.get('sfm'), 'session', None)
+    if session is None or session.engine is None:
+        return {}
+    engine = session.engine
+    return {'observations': sfm_outputs.cloud_observations(
+        sfm_outputs.best_segment(engine).map, engine.K, session.cfg.cloud_cfg)}
 
 
 def _scene_config(gt: dict[str, Any], folder: Path) -> str:
@@ -75,11 +92,14 @@ def against_truth_file(bag: str, report: dict[str, Any],
 
 
 def measure(bag: str, report: dict[str, Any], msgs: dict[str, Any], gt: dict[str, Any],
-            lengths: bool = True) -> dict[str, Any]:
+            lengths: bool = True, observations: list[tuple[Any, Any]] | None = None
+            ) -> dict[str, Any]:
     """
     Scale error and (with ``lengths``) Table 3 length errors of one finished run.
 
     :param msgs: the run's last messages by topic (deserialized).
+    :param observations: per published landmark, the stamps and undistorted px that observed
+        it (``sfm_outputs.cloud_observations``); without them only the projected truth.
     """
     from absscale_ros import conversions
     from absscale_ros.core import evaluation
@@ -109,13 +129,14 @@ def measure(bag: str, report: dict[str, Any], msgs: dict[str, Any], gt: dict[str
         result['local_scale_error_mm_per_m'] = 1000.0 * (factor / local - 1.0)
     if lengths and '/scaled_cloud' in msgs and '/absscale/scaled_path' in msgs:
         try:
-            result.update(_lengths(gt, msgs, idx))
+            result.update(_lengths(gt, msgs, idx, observations))
         except ValueError as err:  # e.g. gt.json from another renderer version
             result['lengths_error'] = str(err)
     return result
 
 
-def _lengths(gt: dict[str, Any], msgs: dict[str, Any], idx: list[int]) -> dict[str, Any]:
+def _lengths(gt: dict[str, Any], msgs: dict[str, Any], idx: list[int],
+             observations: list[tuple[Any, Any]] | None) -> dict[str, Any]:
     """Table 3 figures of one run's metric landmarks (see ``core/evaluation.py``)."""
     from absscale_ros import conversions
     from absscale_ros.core import evaluation
@@ -124,13 +145,24 @@ def _lengths(gt: dict[str, Any], msgs: dict[str, Any], idx: list[int]) -> dict[s
     pts = np.stack([cloud[a] for a in 'xyz'], axis=1).astype(np.float64)
     metric_poses, _ = conversions.path_msg_to_poses(msgs['/absscale/scaled_path'])
     camera = groundtruth.camera_from_json(gt['camera'])  # type: ignore[arg-type]
-    truth = evaluation.landmark_truth(
-        pts, metric_poses, idx, camera,
-        lambda k, px: groundtruth.points_behind_pixels(gt, k, px))
-    stats = evaluation.length_errors(pts, truth, np.random.default_rng(0))
-    return {'landmarks': len(pts),
-            'landmarks_with_truth': int(np.isfinite(truth[:, 0]).sum()),
-            'lengths': stats.__dict__}
+
+    def behind(k: int, px: np.ndarray) -> np.ndarray:
+        return groundtruth.points_behind_pixels(gt, k, px)
+    projected = evaluation.landmark_truth(pts, metric_poses, idx, camera, behind)
+    out = {'landmarks': len(pts), 'truth': 'projected',
+           'landmarks_with_truth': int(np.isfinite(projected[:, 0]).sum()),
+           'lengths': evaluation.length_errors(pts, projected, np.random.default_rng(0)).__dict__}
+    if observations is None or len(observations) != len(pts):
+        return out  # no map, or not the published cloud's landmarks
+    frame_of = {int(f['stamp_ns']): k for k, f in enumerate(gt['frames'])}  # type: ignore
+    truth = evaluation.observed_truth(
+        [(np.array([frame_of[int(s)] for s in stamps]), uv) for stamps, uv in observations],
+        camera, behind)
+    out.update(truth='observations', landmarks_with_truth=int(np.isfinite(truth[:, 0]).sum()),
+               lengths=evaluation.length_errors(pts, truth, np.random.default_rng(0)).__dict__,
+               lengths_projected=out['lengths'],
+               landmarks_with_projected_truth=out['landmarks_with_truth'])
+    return out
 
 
 def run(args: argparse.Namespace) -> int:

@@ -79,3 +79,18 @@ def test_widest_angle_anchor_is_the_least_aligned_ray(engine: sfm.IncrementalSfm
     got = landmark_quality._widest_angles_deg(pts, T, counts, starts)
     assert np.isnan(got[1]) and np.array_equal(got, want, equal_nan=True)
     assert (got > 1.0).sum() > len(got) // 2  # most landmarks seen under a real angle
+
+
+def test_cloud_observations_are_the_published_landmarks_own(engine: sfm.IncrementalSfm) -> None:
+    """In the cloud's order: each published point reprojects onto its listed observations."""
+    m, K = engine.current.map, engine.K
+    cfg = landmark_quality.CloudConfig(min_observations=3, min_angle_deg=2.0, max_reproj_px=1.0)
+    xyz, _ = sfm_outputs.cloud(m, K, cfg)
+    obs = sfm_outputs.cloud_observations(m, K, cfg)
+    T_of = {kf.stamp_ns: kf.T_world_cam for kf in m.keyframes.values()}
+    assert len(obs) == len(xyz) > 20
+    for point, (stamps, uv) in zip(xyz, obs):
+        T = np.array([T_of[int(s)] for s in stamps])
+        p_cam = np.einsum('nji,nj->ni', T[:, :3, :3], point - T[:, :3, 3])
+        px = p_cam[:, :2] / p_cam[:, 2:] @ K[:2, :2].T + K[:2, 2]
+        assert len(stamps) >= 3 and np.linalg.norm(px - uv, axis=1).max() <= 1.0 + 1e-9
