@@ -126,14 +126,20 @@ def _check_step_window(sections: dict[str, dict[str, Any]]) -> None:
     Refuse a step window wider than a node's stamp pairing: the frames in flight would outrun
     their vertices, be decided unpaired and give another result on every run (window 16
     against pair_depth 10: 66-79 of 300 frames unpaired, two different factors in two runs).
+    Refuse a detector that waits for the selector's requests when the selector sends none.
     """
     window = int(params.node_params(sections, 'bag_replay').get('step_window', 1))
-    for node in ('keyframe_selector', 'sfm'):
+    for node in ('keyframe_selector', 'sfm', 'vertex_detector'):
         depth = int(params.node_params(sections, node).get('pair_depth', 10))
         if window > depth:
             raise AbsScaleError(f'bag_replay step_window {window} > {node} pair_depth {depth}: '
                                 'frames would be decided without their vertices; raise '
                                 'pair_depth or lower step_window')
+    asks, answers = (bool(params.node_params(sections, node).get('detect_on_request', False))
+                     for node in ('keyframe_selector', 'vertex_detector'))
+    if answers and not asks:  # the detector would wait for requests that never come
+        raise AbsScaleError('vertex_detector detect_on_request needs keyframe_selector '
+                            'detect_on_request')
 
 
 def _overrides(values: dict[str, Any]) -> list[Parameter]:
@@ -425,7 +431,8 @@ def _frames_not_processed(frames: int, node_reports: dict[str, Any]) -> dict[str
     """
     Per frame-rate node, the bag's frames it lost (live: dropped by sensor-data QoS when
     behind), as a count and a share; frames the detector's live rate cap passed over are
-    counted apart, and so are the keyframes a live SfM skipped. Offline all are zero.
+    counted apart, and so are the frames it was not asked for (offline, ``detect_on_request``)
+    and the keyframes a live SfM skipped. Offline all are zero.
     """
     handled = {'frame_ingest': 'frames_decoded', 'vertex_detector': 'frames',
                'keyframe_selector': 'frames'}
@@ -436,8 +443,11 @@ def _frames_not_processed(frames: int, node_reports: dict[str, Any]) -> dict[str
             continue
         # Frames a live detector passed over by its rate cap were not lost: counted apart.
         by_rate = int(node_reports[node].get('frames_skipped_by_rate', 0))
-        lost = frames - int(count) - by_rate
+        unasked = int(node_reports[node].get('frames_not_requested', 0))  # decided without
+        lost = frames - int(count) - by_rate - unasked
         out[node] = {'count': lost, 'share': round(lost / frames, 4)}
+        if unasked:
+            out[node]['not_requested'] = unasked
         if by_rate:
             out[node]['skipped_by_rate'] = by_rate
     # Keyframes the live SfM skipped for a newer one (their tracked steps were chained on).

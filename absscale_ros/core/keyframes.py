@@ -20,8 +20,6 @@ frame: a pause), times the time since it.
 """
 from collections import deque
 from dataclasses import dataclass
-from typing import Callable
-
 import cv2
 import numpy as np
 import numpy.typing as npt
@@ -30,7 +28,6 @@ from absscale_ros.core import keyframe_geometry
 from absscale_ros.core.types import CameraModel
 
 FloatArray = npt.NDArray[np.float64]
-Decide = Callable[..., 'Decision']
 GRID = (4, 3)  # columns, rows of the corner detection grid
 
 
@@ -176,6 +173,27 @@ class Decision:
     step: TrackedStep | None = None
 
 
+@dataclass(frozen=True, eq=False)
+class Measured:
+    """
+    A frame the selector tracked and measured, not yet decided on (``KeyframeSelector.measure``).
+
+    :param reason: the decision's reason when the target cannot change it ('first', or a
+        non-keyframe's), '' when the baseline decides.
+    :param baseline_ratio: the baseline ratio the decision uses (NaN as in ``Decision``).
+    :param low_tracks: fewer than ``min_tracked_ratio`` of the reference's corners tracked.
+    :param grey: the tracking image (a keyframe's corners are detected in it).
+    """
+
+    stamp_ns: int
+    reason: str
+    sharpness_ratio: float
+    tracked_ratio: float
+    baseline_ratio: float
+    low_tracks: bool
+    grey: npt.NDArray[np.uint8]
+
+
 class KeyframeSelector:
     """Stateful selector: call ``update`` once per frame, in stamp order."""
 
@@ -273,7 +291,7 @@ class KeyframeSelector:
     def update(self, stamp_ns: int, image_bgr: npt.NDArray[np.uint8], camera: CameraModel,
                target_area: float = 0.0, detected: bool = True) -> Decision:
         """
-        Decide whether the frame is a keyframe.
+        Decide whether the frame is a keyframe (``measure`` then ``decide``).
 
         :param image_bgr: (H, W, 3) uint8 BGR (or (H, W) grey) image of ``camera``.
         :param camera: intrinsics of this image (distortion allowed).
@@ -282,6 +300,14 @@ class KeyframeSelector:
             that is behind skips frames; a keyframe without its vertices cannot add the target
             to the map, so such a frame is passed over ('undetected') for the next detected one
             unless tracking is running out or the baseline has reached its maximum.
+        """
+        return self.decide(self.measure(stamp_ns, image_bgr, camera), target_area, detected)
+
+    def measure(self, stamp_ns: int, image_bgr: npt.NDArray[np.uint8],
+                camera: CameraModel) -> Measured:
+        """
+        Track the frame and measure it against the reference: everything ``update`` does that
+        does not depend on the target. ``decide`` must follow before the next frame is measured.
         """
         self._stamp_ns, self._measured = stamp_ns, None
         grey = self._grey(image_bgr)
@@ -293,48 +319,63 @@ class KeyframeSelector:
         n = len(self._pts) if self._pts is not None else 0
         tracked = n / self._seeded if self._seeded else 0.0
 
-        def decide(keyframe: bool, reason: str, ratio: float = float('nan')) -> Decision:
-            if keyframe and not detected and reason in ('first', 'baseline') \
-                    and not ratio >= self.cfg.max_baseline_ratio:
-                keyframe, reason = False, 'undetected'
-            after_loss = keyframe and self._lost_since_keyframe
-            step = self._measured if keyframe and not after_loss else None
-            if keyframe:
-                self._seed(grey)
-                self._have_keyframe, self._lost_since_keyframe = True, False
-            return Decision(stamp_ns, keyframe, reason, sharp, tracked, ratio, target_area,
-                            after_loss, step)
+        def measured(reason: str, ratio: float = float('nan'), low_tracks: bool = False
+                     ) -> Measured:
+            return Measured(stamp_ns, reason, sharp, tracked, ratio, low_tracks, grey)
 
         turning = self._turning(cam) if n >= self.cfg.lost_tracks else ''
         self._since_turn = 0 if turning else self._since_turn + 1
         if turning:
             self._rate_per_ns = 0.0  # the walk paused: its speed so far predicts nothing
         if not self._have_keyframe and not blurred:
-            return decide(True, 'first')
+            return measured('first')
         if n < self.cfg.lost_tracks:
-            return self._lost(grey, decide, blurred)
+            return measured(self._lost(grey, blurred))
         self._in_loss = False
         if blurred:
-            return decide(False, 'blurred')
+            return measured('blurred')
         assert self._pts is not None and self._pts0 is not None
         flow_px = float(np.median(np.linalg.norm((self._pts - self._pts0).reshape(-1, 2), axis=1)))
         low_tracks = tracked < self.cfg.min_tracked_ratio
         if flow_px < self.cfg.min_flow_px and not low_tracks:
-            return decide(False, 'waiting')
+            return measured('waiting')
         if turning or self._since_turn < self.cfg.turn_hold_frames:
-            reason = turning or 'rotating'
-            return self._lost(grey, decide, False) if low_tracks else decide(False, reason)
+            return measured(self._lost(grey, False) if low_tracks else turning or 'rotating')
         geo = self._geometry(cam)
         if geo is None or geo.degenerate:
             self._rate_per_ns = 0.0
             # Few corners left and still no baseline: the overlap with the last keyframe is
             # going; start again from here rather than wait on a handful of far corners.
-            return self._lost(grey, decide, False) if low_tracks else decide(False, 'degenerate')
+            return measured(self._lost(grey, False) if low_tracks else 'degenerate')
         ratio = self._pooled_ratio(geo)
         if np.isfinite(ratio) and geo.rotation is not None and geo.direction is not None:
             self._measured = TrackedStep(self._ref_stamp_ns, geo.rotation,
                                          -geo.rotation.T @ geo.direction * ratio)
-        return self._by_baseline(ratio, low_tracks, target_area, decide)
+        return measured('', self._predicted_ratio(ratio), low_tracks)
+
+    def needs_target(self, m: Measured) -> bool:
+        """
+        Whether ``decide`` on ``m`` wants the target's area: the frame is a keyframe if the
+        target is in view (whose vertices go out with it). Every other frame is decided the
+        same without it, so a detector asked only for these frames gives the same keyframes.
+        """
+        return m.reason == 'first' or (m.reason == '' and self._by_baseline(m, True)[0])
+
+    def decide(self, m: Measured, target_area: float = 0.0, detected: bool = True) -> Decision:
+        """Decide on the frame ``measure`` just measured (see ``update`` for the arguments)."""
+        keyframe, reason = (m.reason == 'first', m.reason) if m.reason else \
+            self._by_baseline(m, target_area >= self.cfg.min_target_area)
+        ratio = m.baseline_ratio
+        if keyframe and not detected and reason in ('first', 'baseline') \
+                and not ratio >= self.cfg.max_baseline_ratio:
+            keyframe, reason = False, 'undetected'
+        after_loss = keyframe and self._lost_since_keyframe
+        step = self._measured if keyframe and not after_loss else None
+        if keyframe:
+            self._seed(m.grey)
+            self._have_keyframe, self._lost_since_keyframe = True, False
+        return Decision(m.stamp_ns, keyframe, reason, m.sharpness_ratio, m.tracked_ratio, ratio,
+                        target_area, after_loss, step)
 
     def _pooled_ratio(self, geo: keyframe_geometry.Motion) -> float:
         """
@@ -389,7 +430,7 @@ class KeyframeSelector:
         flow_px = np.linalg.norm((self._pts - self._last_step).reshape(-1, 2), axis=1)
         return float(np.sqrt(np.median(res_sq))) * float(cam.K[0, 0]), float(np.median(flow_px))
 
-    def _lost(self, grey: npt.NDArray[np.uint8], decide: Decide, blurred: bool) -> Decision:
+    def _lost(self, grey: npt.NDArray[np.uint8], blurred: bool) -> str:
         """Tracking is lost: restart tracking here, without a keyframe (no baseline to check)."""
         if not self._in_loss:
             self.lost_count += 1  # count each loss once, not every frame of it
@@ -397,21 +438,26 @@ class KeyframeSelector:
         self._lost_since_keyframe = True
         if not blurred:
             self._seed(grey)  # a provisional reference: the next keyframe is measured from it
-        return decide(False, 'lost')
+        return 'lost'
 
-    def _by_baseline(self, ratio: float, low_tracks: bool, target_area: float,
-                     decide: Decide) -> Decision:
-        cfg = self.cfg
-        has_target = target_area >= cfg.min_target_area
-        wanted = cfg.target_baseline_ratio * (1.0 if has_target else cfg.no_target_factor)
+    def _predicted_ratio(self, ratio: float) -> float:
+        """
+        The measured ratio, or its constant-speed prediction when larger; only once the
+        measured ratio is in the band, so a camera that stopped is not taken for one still
+        walking.
+        """
         dt_ns = self._stamp_ns - self._ref_stamp_ns
-        if np.isfinite(ratio) and dt_ns > 0 and ratio >= cfg.min_baseline_ratio:
-            # Constant-speed prediction; only once the measured ratio is in the band, so a
-            # camera that stopped is not taken for one still walking.
+        if np.isfinite(ratio) and dt_ns > 0 and ratio >= self.cfg.min_baseline_ratio:
             self._rate_per_ns = max(self._rate_per_ns, ratio / dt_ns)
             ratio = max(ratio, self._rate_per_ns * dt_ns)
+        return ratio
+
+    def _by_baseline(self, m: Measured, has_target: bool) -> tuple[bool, str]:
+        cfg = self.cfg
+        ratio = m.baseline_ratio
+        wanted = cfg.target_baseline_ratio * (1.0 if has_target else cfg.no_target_factor)
         if ratio >= min(wanted, cfg.max_baseline_ratio):
-            return decide(True, 'baseline', ratio)
-        if low_tracks and ratio >= cfg.min_baseline_ratio:
-            return decide(True, 'tracks', ratio)
-        return decide(False, 'waiting', ratio)
+            return True, 'baseline'
+        if m.low_tracks and ratio >= cfg.min_baseline_ratio:
+            return True, 'tracks'
+        return False, 'waiting'

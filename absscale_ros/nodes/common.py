@@ -12,6 +12,9 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data,
 from std_msgs.msg import Header
 
 ACK_TOPIC = '/absscale/ack'
+# Offline, the keyframe selector asks the vertex detector for a frame's vertices here
+# (std_msgs/Header, the frame's stamp; ``detect_on_request``).
+DETECT_REQUESTS_TOPIC = '/absscale/detect_requests'
 # Offline (step mode), once every frame is acknowledged: one more step that the nodes holding
 # state until the end (the sfm's final batch adjustment) answer with their last outputs.
 END_OF_BAG_TOPIC = '/absscale/end_of_bag'

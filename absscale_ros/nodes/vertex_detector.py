@@ -21,6 +21,12 @@ With ``qos: sensor_data`` (a live camera) it looks at most ``live_max_rate_hz`` 
 (by frame stamp) and publishes nothing for the frames in between, so that the SfM, which needs
 the CPU more, is not starved; the keyframe selector places keyframes on frames it looked at.
 
+With ``detect_on_request`` (offline) it looks only at the frames the keyframe selector asks for
+on ``/absscale/detect_requests`` (std_msgs/Header, the frame's stamp): those that become
+keyframes if the target is in them (136 of the 60 s bag's 1800 frames); the selector decides
+every other frame the same without their vertices (``KeyframeSelector.needs_target``). The
+cube is then tracked from one looked-at frame to the next.
+
 ``/absscale/debug_image`` (Image bgr8, the overlay) is drawn only while someone subscribes.
 ``/diagnostics`` carries frames, detection rate and time per frame once a second. In step mode
 each frame is acknowledged on ``/absscale/ack`` (``common.StepAck``).
@@ -29,11 +35,13 @@ import time
 from typing import Any
 
 from absscale_ros import conversions
-from absscale_ros.core import cube_track, detect, detect_cube, detect_sheet, errors, sheet_track
+from absscale_ros.core import (cube_track, detect, detect_cube, detect_sheet, errors,
+                               pairing, sheet_track)
 from absscale_ros.nodes import common
 import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from std_msgs.msg import Header
 
 
 class VertexDetectorNode(Node):
@@ -55,6 +63,14 @@ class VertexDetectorNode(Node):
         self._tracker = cube_track.CubeTracker(self._cfg.cube)
         self._sheets = sheet_track.SheetHistory()  # and a sheet's aspect over the last frames
         in_qos = common.SENSOR if qos == 'sensor_data' else common.RELIABLE
+        # Offline only: live, the rate cap above leaves the SfM its CPU instead.
+        on_request = self.declare_parameter('detect_on_request', False).value \
+            and qos != 'sensor_data'
+        depth = self.declare_parameter('pair_depth', 10).value
+        # Frames held until the selector asked for them or decided them without (a newer one
+        # asked for: it decides in order), and requests that overtook their frame.
+        self._requested: pairing.StampPairer[Image, Header] | None = \
+            pairing.StampPairer(depth) if on_request else None
         self._vertices_pub = self.create_publisher(PointCloud2, '/absscale/vertices',
                                                    common.RELIABLE)
         self._debug_pub = self.create_publisher(Image, '/absscale/debug_image', 1)
@@ -66,7 +82,10 @@ class VertexDetectorNode(Node):
                                                   self._on_info, in_qos)
         self._frames_sub = self.create_subscription(Image, '/absscale/frames', self._on_frame,
                                                     in_qos)
-        self._frames = self._with_target = self._dropped = self._skipped = 0
+        if self._requested is not None:
+            self.create_subscription(Header, common.DETECT_REQUESTS_TOPIC, self._on_request,
+                                     common.RELIABLE)
+        self._frames = self._with_target = self._dropped = self._skipped = self._offered = 0
         self._times_ms: list[float] = []
         self._timer = self.create_timer(1.0, self._publish_diagnostics)
 
@@ -82,9 +101,34 @@ class VertexDetectorNode(Node):
 
     def _on_frame(self, msg: Image) -> None:
         stamp_ns = conversions.stamp_to_ns(msg.header.stamp)
+        if self._requested is not None:
+            # Acknowledged at once: a frame asked for stays in flight at the selector, which
+            # waits for its vertices.
+            self._ack.ack(msg.header.stamp, self._frames_sub.topic_name)
+            self._offered += 1
+            self._detect_paired(self._requested.add_first(stamp_ns, msg))
+            return
         if self._skip(stamp_ns):
             self._skipped += 1
             return
+        self._ack.ack(msg.header.stamp, self._frames_sub.topic_name, self._detect(msg))
+
+    def _on_request(self, msg: Header) -> None:
+        assert self._requested is not None
+        self._detect_paired(self._requested.add_second(conversions.stamp_to_ns(msg.stamp), msg))
+
+    def _detect_paired(self, paired: pairing.Pairing[Image, Header]) -> None:
+        for stamp_ns, _ in paired.dropped_second:
+            self.get_logger().error(f'asked for frame {stamp_ns}, which is not held (more '
+                                    'frames in flight than pair_depth?)')
+        for stamp_ns, frame, _ in paired.pairs:
+            if not self._detect(frame):  # the selector waits for an answer: nothing found
+                self._vertices_pub.publish(conversions.array_to_cloud_msg(
+                    np.zeros(0, detect.VERTEX_DTYPE), stamp_ns, frame.header.frame_id))
+
+    def _detect(self, msg: Image) -> list[str]:
+        """Detect the frame's targets, publish its vertices; return the topics published."""
+        stamp_ns = conversions.stamp_to_ns(msg.header.stamp)
         outputs: list[str] = []
         try:
             image = conversions.image_msg_to_bgr(msg)
@@ -105,7 +149,7 @@ class VertexDetectorNode(Node):
         except errors.AbsScaleError as err:
             self._dropped += 1
             self.get_logger().warning(f'frame dropped: {err}', throttle_duration_sec=5.0)
-        self._ack.ack(msg.header.stamp, self._frames_sub.topic_name, outputs)
+        return outputs
 
     def _skip(self, stamp_ns: int) -> bool:
         """Live: whether this frame comes too soon after the last one looked at."""
@@ -121,6 +165,8 @@ class VertexDetectorNode(Node):
         times = np.array(self._times_ms) if self._times_ms else np.array([np.nan])
         return {'frames': self._frames, 'frames_with_target': self._with_target,
                 'frames_dropped': self._dropped, 'frames_skipped_by_rate': self._skipped,
+                # detect_on_request: the frames the selector decided without their vertices
+                'frames_not_requested': max(0, self._offered - self._frames - self._dropped),
                 'detection_rate': self._with_target / self._frames if self._frames else None,
                 'cube_frames_in_box': self._tracker.box_frames,  # settled near the last cube
                 'time_ms_median': float(np.median(times)),

@@ -1,4 +1,5 @@
 """Keyframe selection on simulator frames with ground truth, and its two-view test."""
+import json
 from pathlib import Path
 
 from absscale_ros import bagio, conversions
@@ -16,6 +17,11 @@ CFG = keyframes.KeyframeConfig()
 def sequence(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict, list, object]:
     bag = tmp_path_factory.mktemp('kf') / 'scripted.mcap'
     gt = write_sequence(bag, seed=1)
+    return (bag, gt, *_frames(bag))
+
+
+def _frames(bag: Path) -> tuple[list, object]:
+    """A bag's (stamp, BGR image) in order, and its camera."""
     frames, camera = [], None
     with bagio.open_bag(bag) as reader:
         for msg in reader.messages():
@@ -25,7 +31,7 @@ def sequence(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict, list
             else:
                 frames.append((conversions.stamp_to_ns(ros.header.stamp),
                                conversions.compressed_msg_to_bgr(ros)))
-    return bag, gt, frames, camera
+    return frames, camera
 
 
 def _run(frames: list, camera: object, area: float = 0.0,
@@ -186,5 +192,28 @@ def test_stalled_estimate_still_makes_a_keyframe_before_the_band_ends() -> None:
     taken = []
     for k, ratio in enumerate(stalled, start=4):
         selector._stamp_ns = k * period_ns
-        taken.append(selector._by_baseline(ratio, False, 0.0, lambda kf, *a: kf))
+        m = keyframes.Measured(k * period_ns, '', 1.0, 1.0, selector._predicted_ratio(ratio),
+                               False, np.zeros((1, 1), np.uint8))
+        taken.append(selector._by_baseline(m, False)[0])
     assert any(taken[:18 - 4]), taken
+
+
+def test_asking_for_the_target_only_where_it_matters_gives_the_same_keyframes() -> None:
+    # The outdoor sample (cube in and out of view, pans, a walk): the detector asked only for
+    # the frames needs_target names (detect_on_request) must leave every decision as it was
+    # with every frame's target area.
+    bag = Path(__file__).resolve().parents[2] / 'bags' / 'outdoor_cube_sample.mcap'
+    areas = bench_keyframes.gt_areas(json.loads(Path(f'{bag}.gt.json').read_text()))
+    every, _ = bench_keyframes.select(str(bag), CFG, areas)
+    frames, camera = _frames(bag)
+    selector, asked, lazy = keyframes.KeyframeSelector(CFG), [], []
+    for stamp, image in frames:
+        m = selector.measure(stamp, image, camera)
+        if selector.needs_target(m):
+            asked.append(stamp)
+        lazy.append(selector.decide(m, areas[stamp] if asked[-1:] == [stamp] else 0.0))
+    assert [(d.keyframe, d.reason) for d in lazy] == [(d.keyframe, d.reason) for d in every]
+    keyframe_stamps = [d.stamp_ns for d in every if d.keyframe]
+    assert set(keyframe_stamps) <= set(asked) and len(keyframe_stamps) >= 20
+    # ... and the point of it: few frames besides the keyframes (44 of 300 on this bag).
+    assert len(asked) < 0.25 * len(frames)

@@ -161,6 +161,37 @@ def test_selector_decides_frames_whose_vertices_never_come(context) -> None:
     assert spin_until(executor, lambda: _stamps(probe.got['/absscale/keyframe_vertices']) == [23])
 
 
+def test_selector_asks_for_the_frames_it_needs_and_waits_for_them(context) -> None:
+    """detect_on_request: the first sharp frame would start the map, so its vertices are
+    asked for; the frames after it wait behind it, and are then decided without asking
+    (noise: tracking lost, never a keyframe)."""
+    selector = KeyframeSelectorNode(context=context, parameter_overrides=[
+        Parameter('detect_on_request', value=True)])
+    probe = Probe(context=context)
+    requests: list[Header] = []
+    probe.create_subscription(Header, '/absscale/detect_requests', requests.append,
+                              common.RELIABLE)
+    executor = _executor(context, selector, probe)
+    assert spin_until(executor, lambda: probe.vertices.get_subscription_count() == 1
+                      and probe.frames.get_subscription_count() == 2
+                      and selector._request_pub.get_subscription_count() == 1)
+    for stamp in (30, 31, 32):
+        probe.frames.publish(_image(320, 240, stamp))
+    assert spin_until(executor, lambda: len(requests) == 1)
+    spin_until(executor, lambda: False, timeout_s=0.3)
+    assert [conversions.stamp_to_ns(r.stamp) for r in requests] == [30]
+    assert probe.acks == [] and selector.report()['frames'] == 0
+    empty = np.zeros(0, [('u', '<f4'), ('v', '<f4'), ('object_id', '<i4')])
+    probe.vertices.publish(conversions.array_to_cloud_msg(empty, 30, 'cam'))
+    assert spin_until(executor, lambda: selector.report()['frames'] == 3)
+    assert selector.keyframe_stamps_ns == [30] and len(requests) == 1
+    assert spin_until(executor, lambda: len(probe.acks) == 4)
+    assert [(a.stamp_ns, a.input_topic) for a in probe.acks] == [
+        (30, '/absscale/frames'), (30, '/absscale/vertices'), (31, '/absscale/frames'),
+        (32, '/absscale/frames')]
+    assert spin_until(executor, lambda: _stamps(probe.got['/absscale/keyframe_vertices']) == [30])
+
+
 def test_ingest_worker_applies_camera_info_in_arrival_order(context) -> None:
     """A camera_info of a new resolution that comes while the worker is still decoding
     frames of the old one is not applied to them (they would wait for an info that never

@@ -82,6 +82,42 @@ def test_live_detector_keeps_to_its_rate(context) -> None:
     helper.destroy_node()
 
 
+def test_on_request_it_looks_only_at_the_frames_asked_for(context) -> None:
+    """detect_on_request: frames are acknowledged at once without outputs, and only those
+    the selector asks for get a cloud, whether the request comes before or after the frame."""
+    node, helper, pub, clouds, executor = _detector_and_camera(
+        context, 'vd_request_helper', [Parameter('detect_on_request', value=True),
+                                       Parameter('pair_depth', value=3)], 10)
+    acks: list[Header] = []
+    helper.create_subscription(Header, '/absscale/ack', acks.append, 10)
+    ask = helper.create_publisher(Header, '/absscale/detect_requests', 10)
+    rng = np.random.default_rng(2)
+    img, _, _ = st.render_cube(rng, *st.cube_pose(35, 25, 5.0))
+    assert spin_until(executor, lambda: pub.get_subscription_count() > 0
+                      and ask.get_subscription_count() > 0, 5.0)
+
+    def frame(stamp: int) -> Image:
+        return conversions.array_to_image_msg(img, 'bgr8', stamp, 'camera')
+
+    for stamp in (1_000, 2_000, 3_000):
+        pub.publish(frame(stamp))
+    assert spin_until(executor, lambda: len(acks) == 3, 10.0)
+    assert clouds == [] and {a.frame_id for a in acks} == {'vertex_detector|/absscale/frames|'}
+    ask.publish(frame(2_000).header)  # after its frame: 1_000 was decided without
+    assert spin_until(executor, lambda: len(clouds) == 1, 10.0)
+    ask.publish(frame(4_000).header)  # before its frame (another process's selector)
+    executor.spin_once(timeout_sec=0.2)
+    assert len(clouds) == 1
+    pub.publish(frame(4_000))
+    assert spin_until(executor, lambda: len(clouds) == 2, 10.0)
+    assert [conversions.stamp_to_ns(c.header.stamp) for c in clouds] == [2_000, 4_000]
+    assert len(conversions.cloud_msg_to_array(clouds[0])) == 7
+    r = node.report()
+    assert r['frames'] == 2 and r['frames_not_requested'] == 2
+    node.destroy_node()
+    helper.destroy_node()
+
+
 def test_sheet_names_list_from_parameters(context) -> None:
     # An empty list default (sheet.other_sheets) was declared a byte array: a YAML list of
     # names then stopped the node at startup (InvalidParameterTypeException).
