@@ -53,12 +53,25 @@ def _deterministic(report: dict) -> dict:
             'scale': nodes['scale']}
 
 
-@pytest.mark.parametrize('config', ['auto', 'outdoor_cube'])
+def _on_request_config(tmp_path: Path) -> str:
+    """outdoor_cube.yaml with the selector asking the detector for frames (detect_on_request,
+    off in every shipped config: /absscale/vertices then no longer carries every frame)."""
+    text = (Path(__file__).resolve().parent.parent / 'config' / 'outdoor_cube.yaml').read_text()
+    on = text.replace('detect_on_request: false', 'detect_on_request: true')
+    assert on.count('detect_on_request: true') == 2  # the selector's and the detector's
+    path = tmp_path / 'on_request.yaml'
+    path.write_text(on)
+    return str(path)
+
+
+@pytest.mark.parametrize('config', ['auto', 'on_request'])
 def test_processes_give_the_same_result_as_one_process(tmp_path: Path, config: str) -> None:
     """--processes: every node its own process, over real DDS on loopback; --split (the frame
-    nodes, and the sfm, in processes of their own; scale in the runner) too. The outdoor
-    config's selector asks the detector for frames (detect_on_request): across processes a
-    request may come before its frame."""
+    nodes, and the sfm, in processes of their own; scale in the runner) too. With
+    detect_on_request the selector asks the detector for frames: across processes a request
+    may come before its frame."""
+    if config == 'on_request':
+        config = _on_request_config(tmp_path)
     bag = tmp_path / 'cam.mcap'
     write_camera_bag(bag, frames=10, size=(640, 360))
     reports = []
