@@ -45,6 +45,8 @@ NOTCH_INSIDE = 0.95  # of a region's outline within a hidden-corner sheet's: the
 NOTCH_SLACK_PX = 2.0  # work px a region's outline may lie outside that sheet's outline
 SEEN_PARTS = 2  # parts of a sheet seen in parts (the split path's: a region and a part)
 CLIP_AREA_TOL = 0.25  # a clipped seen outline's area may differ from its region's by this
+# The hidden-corner paths of ``_accept_hidden``, in the order they are tried.
+HIDDEN_PATHS = ('five', 'stub', 'sharp', 'split', 'border')
 
 
 @dataclass(frozen=True)
@@ -284,6 +286,7 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
         seen in the last frames (``cfg.aspect_history``); None: this frame alone.
     :returns: detections, best first; each has 4 corners ordered as in ``targets``.
     """
+    video = history  # (also without the aspect history: the hidden-corner path it found)
     if history is not None and cfg.aspect_history > 0:
         history.next_frame(cfg.aspect_history)
     else:
@@ -315,12 +318,15 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
                           dist, history=history)
     if not found and cfg.blur_band_frac > 0.0:
         _accept_blurred(image_bgr, unfound, band, cfg, K, found, dist, history)
+    path = None
     if not found:
         hidden = [r for r in cands.white_regions if not _whole_small(r[0], small, scale)]
-        _accept_hidden(image_bgr, hidden, scale, band, cfg, K, found, dist,
-                       cands.split_regions, cands.border_regions, work,
-                       [r for r in cands.notched_regions if not _whole_small(r[0], small, scale)],
-                       cands.split_parts)
+        path = _accept_hidden(image_bgr, hidden, scale, band, cfg, K, found, dist, cands,
+                              [r for r in cands.notched_regions
+                               if not _whole_small(r[0], small, scale)],
+                              None if video is None else video.hidden_path)
+    if video is not None:
+        video.hidden_path = path
     found.sort(key=lambda f: -f[0])
     return [_detection(f, sheet_checks.best_model(f[1], image_bgr.shape, cfg, K)) for f in found]
 
@@ -536,47 +542,72 @@ def _blur_alike(ramps: Array) -> bool:
 def _accept_hidden(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candidates.Region],
                    scale: float, band: float, cfg: SheetConfig, K: Array | None,
                    found: list[Found], dist: Array | None,
-                   split: list[sheet_candidates.Region] | None = None,
-                   border: list[sheet_candidates.Region] | None = None,
-                   work: npt.NDArray[np.uint8] | None = None,
+                   cands: sheet_candidates.Candidates | None = None,
                    notched: list[sheet_candidates.Region] | None = None,
-                   parts: list[sheet_candidates.Region] | None = None) -> None:
+                   prior: str | None = None) -> str | None:
     """
-    The hidden-corner paths: five-sided regions (``sheet_partial``, when ``cfg.min_seen`` < 1;
-    also of the ``split`` regions, a region joined with a part an occluder cut off),
-    then, when they give no sheet, a stub (``sheet_stub``, ``cfg.stub_px`` > 0; also of the
-    ``notched`` regions, ``Candidates.notched_regions``, up to ``NOTCH_MAX_HYPS`` more). Both
-    sets of hypotheses are refined in one ``_accept_partial`` call: a frame without a sheet
-    tries both, and one call per pass costs about a millisecond less than two. A sheet found
-    gets the region seen as its outline (``_follow_notches``; ``parts``: the split path's
-    cut-off parts, for a sheet seen in parts); with none found, the
-    corner-beyond-the-border and five-sided hypotheses are retried as smeared by motion blur
-    (``_accept_blurred_border``).
+    The hidden-corner paths (``HIDDEN_PATHS``, in order): five-sided regions
+    (``sheet_partial``, when ``cfg.min_seen`` < 1), then, when they give no sheet, a stub
+    (``sheet_stub``, ``cfg.stub_px`` > 0; also of the ``notched`` regions,
+    ``Candidates.notched_regions``, up to ``NOTCH_MAX_HYPS`` more), the sharpened five-sided
+    outlines, the ``cands.split_regions`` (a region joined with a part an occluder cut off)
+    and the ``cands.border_regions`` (a corner beyond the border). Their hypotheses are
+    refined in one ``_accept_partial`` call: a frame without a sheet tries all, and one call
+    per pass costs about a millisecond less than one per path. With ``prior``, the path that
+    found the last frame's sheet, the paths up to it are refined first and the others only
+    when they find none (most frames of a page under a box: the later paths' hypotheses were
+    most of their refinement). A sheet found gets the region seen as its outline
+    (``_follow_notches``; the split path's cut-off parts: a sheet seen in parts); with none
+    found, the corner-beyond-the-border and five-sided hypotheses are retried as smeared by
+    motion blur (``_accept_blurred_border``). Return the name of the path that found a sheet,
+    or None.
     """
-    paths: list[_Hidden] = []
-    # (the five-sided regions' hypotheses, grouped by region: retried as blurred below)
-    five = [sheet_partial.hypotheses(lines.full_px(p, scale), cfg.min_seen)
-            for p in sheet_candidates.pentagons(regions)] if cfg.min_seen < 1.0 else []
-    if cfg.min_seen < 1.0:
-        paths.append(_Hidden(five, lambda hyp, out: sheet_partial.finish(hyp, out, band)))
-    if cfg.stub_px > 0.0:
-        paths.append(_stub_path(image_bgr, regions, notched or [], scale, band, cfg, K))
-    # Then the outlines the paths above did not try (only where they find nothing), the
-    # hidden corner then covered by something that is neither the sheet nor its surface.
-    if cfg.min_seen < 1.0:
-        pents = [lines.full_px(p, scale) for p in sheet_candidates.pentagons(regions, True)]
-        paths.append(_Hidden([sheet_partial.hypotheses(p, cfg.min_seen) for p in pents],
-                             lambda hyp, out: sheet_partial.finish(hyp, out, band),
-                             strict_cover=True))
-    if cfg.min_seen < 1.0 and cfg.split_gap > 0.0 and split:
-        paths.append(_split_path(image_bgr, split, scale, band, cfg, K, dist))
+    five: list[list[sheet_partial.Partial]] = []
     outside: list[list[sheet_partial.Partial]] = []
-    if cfg.min_seen < 1.0 and cfg.border_corner and border and work is not None:
-        outside = sheet_border.groups(border, work, cfg, scale, image_bgr.shape)
-        paths.append(_Hidden(outside, lambda hyp, out: sheet_partial.finish(hyp, out, band),
-                             border=True))
-    _accept_partial(image_bgr, paths, band, cfg, K, found, dist=dist)
-    _follow_notches(found, regions + (notched or []), scale, parts or [])
+    parts: list[sheet_candidates.Region] = []
+
+    def five_path() -> _Hidden:
+        # (the five-sided regions' hypotheses, grouped by region: retried as blurred below)
+        five.extend(sheet_partial.hypotheses(lines.full_px(p, scale), cfg.min_seen)
+                    for p in sheet_candidates.pentagons(regions))
+        return _Hidden(five, lambda hyp, out: sheet_partial.finish(hyp, out, band))
+
+    def sharp_path() -> _Hidden:
+        # The outlines the paths above did not try (only where they find nothing), the
+        # hidden corner then covered by something that is neither the sheet nor its surface.
+        pents = [lines.full_px(p, scale) for p in sheet_candidates.pentagons(regions, True)]
+        return _Hidden([sheet_partial.hypotheses(p, cfg.min_seen) for p in pents],
+                       lambda hyp, out: sheet_partial.finish(hyp, out, band),
+                       strict_cover=True)
+
+    def split_path() -> _Hidden:
+        path = _split_path(image_bgr, cands.split_regions, scale, band, cfg, K, dist)
+        parts.extend(cands.split_parts)
+        return path
+
+    def border_path() -> _Hidden:
+        outside.extend(sheet_border.groups(cands.border_regions, cands.work_bgr, cfg, scale,
+                                           image_bgr.shape))
+        return _Hidden(outside, lambda hyp, out: sheet_partial.finish(hyp, out, band),
+                       border=True)
+
+    partial = cfg.min_seen < 1.0
+    makers = {'five': five_path if partial else None,
+              'stub': (lambda: _stub_path(image_bgr, regions, notched or [], scale, band, cfg,
+                                          K)) if cfg.stub_px > 0.0 else None,
+              'sharp': sharp_path if partial else None,
+              'split': split_path if partial and cfg.split_gap > 0.0 and cands else None,
+              'border': border_path if partial and cfg.border_corner and cands else None}
+    names = [n for n in HIDDEN_PATHS if makers[n] is not None]
+    cut = names.index(prior) + 1 if prior in names else len(names)
+    path = None
+    for batch in (names[:cut], names[cut:]):
+        if found or not batch:
+            continue
+        at = _accept_partial(image_bgr, [makers[n]() for n in batch], band, cfg, K, found,
+                             dist=dist)
+        path = None if at is None else batch[at]
+    _follow_notches(found, regions + (notched or []), scale, parts)
     if not found and cfg.blur_band_frac > 0.0:
         _accept_blurred_border(image_bgr, [h for g in outside for h in g], band, cfg, K, found,
                                dist)
@@ -586,6 +617,7 @@ def _accept_hidden(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candida
         hyps = [h for g in five for h in g
                 if not sheet_candidates.touches_border(h.corners, image_bgr.shape, band)]
         _accept_blurred_border(image_bgr, hyps, band, cfg, K, found, dist, hidden=True)
+    return path
 
 
 def _stub_path(image_bgr: npt.NDArray[np.uint8], regions: list[sheet_candidates.Region],
@@ -776,11 +808,12 @@ class _Hidden:
 def _accept_partial(image_bgr: npt.NDArray[np.uint8], paths: list[_Hidden], band: float,
                     cfg: SheetConfig, K: Array | None, found: list[Found],
                     fine_bands: tuple[float, ...] = sheet_partial.FINE_BANDS,
-                    dist: Array | None = None) -> None:
+                    dist: Array | None = None) -> int | None:
     """
     Try every hidden-corner hypothesis of each group (one seen region); keep the best
     supported per group. The paths are tried in order until one finds a sheet, but their
     hypotheses are refined together, one ``sides.refine_many`` call (per pass) for all.
+    Return the index of the path that found a sheet (``found`` is empty on entry), or None.
     ``rough_aspect``: test the aspect of the rough corners (not for stubs, whose rough hidden
     corner comes from short rough sides; ``_passes`` applies it and the floor-tile rule to the
     refined corners anyway). ``checked`` are the sides that must pass the first refinement
@@ -801,9 +834,9 @@ def _accept_partial(image_bgr: npt.NDArray[np.uint8], paths: list[_Hidden], band
         image_bgr, [r for r, _ in rough], [h.seen_ends for _, h in jobs], (band,) + fine_bands,
         [n for _, n in rough], FIRST_PASS_SUPPORT, [p.checked for p, _ in jobs],
         lambda c, out: jobs[c][0].screen is None or jobs[c][0].screen(jobs[c][1], out)))
-    for path, path_groups in zip(paths, groups):
+    for at, (path, path_groups) in enumerate(zip(paths, groups)):
         if found:
-            return  # (a path after one that found a sheet is not tried)
+            return at - 1  # (a path after one that found a sheet is not tried)
         for group in path_groups:
             best: tuple[float, Found] | None = None
             for hyp in group:
@@ -823,6 +856,7 @@ def _accept_partial(image_bgr: npt.NDArray[np.uint8], paths: list[_Hidden], band
                                       out[7] if path.seen_out else out[5], vs))
             if best is not None and all(np.abs(best[1][1] - f[1]).max() > 4.0 for f in found):
                 found.append(best[1])
+    return len(paths) - 1 if found else None
 
 
 def _rough_ok(hyp: sheet_partial.Partial, border: bool, rough_aspect: bool,

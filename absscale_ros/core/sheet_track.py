@@ -7,7 +7,8 @@ passes it in the odd frame where the noise pulls its corners towards the sheet's
 frames it is seen, its error stays above the tolerance. Noise does not persist: a rectangle
 whose aspect error over its tolerance has a median above one over the frames it was measured
 in is not reported in the frame where it passes. The rectangles are followed from frame to
-frame by their image position and size (``MATCH_CENTRE``, ``MATCH_SIZE``).
+frame by their image position and size (``MATCH_CENTRE``, ``MATCH_SIZE``). The history also
+keeps which hidden-corner path found the last frame's sheet, for the detector to try first.
 """
 from dataclasses import dataclass, field
 
@@ -34,12 +35,15 @@ class SheetHistory:
 
     ``next_frame`` starts a frame; ``note`` adds a whole rectangle's aspect error over its
     tolerance (``sheet_checks.passes``); ``refuted`` says whether the rectangle's earlier frames
-    outvote this frame's pass.
+    outvote this frame's pass. ``hidden_path`` is the hidden-corner path that found the last
+    frame's sheet (``detect_sheet.HIDDEN_PATHS``; None: none), which the next frame tries
+    first (``detect_sheet._accept_hidden``).
     """
 
     def __init__(self) -> None:
         self._frame = 0
         self._tracks: list[_Track] = []
+        self.hidden_path: str | None = None
 
     def next_frame(self, window: int) -> None:
         """Start the next frame; forget rectangles not measured in the last ``window`` frames."""

@@ -12,11 +12,13 @@ Accuracy is `absscale bench detect`'s job.
 """
 import argparse
 import importlib
+import json
 from pathlib import Path
 import shutil
 import sys
 import tempfile
 import time
+from typing import Iterator
 
 from absscale_ros import bagio, conversions
 from absscale_ros.core import detect as new
@@ -48,46 +50,56 @@ def _history(mod: object, target: str) -> object | None:
     return None if track is None or target == 'cube' else track.SheetHistory()
 
 
+def bag_sheet(path: str) -> tuple[dict, np.ndarray, str]:
+    """The ground truth of a simulator bag, its K and its sheet name (letter on a cube bag)."""
+    gt = json.loads(Path(path + '.gt.json').read_text())
+    sheet = gt['scene']['variant']['target']
+    return gt, np.array(gt['camera']['K'], float), 'letter' if sheet == 'cube' else sheet
+
+
+def bag_frames(path: str, gt: dict) -> Iterator[np.ndarray]:
+    """The frames of a simulator bag, in order, as BGR images."""
+    with bagio.open_bag(path) as reader:
+        for raw in reader.messages([gt['bag']['image_topic']]):
+            msg = reader.deserialize(raw)
+            yield conversions.compressed_msg_to_bgr(msg) \
+                if raw.msgtype.endswith('CompressedImage') else conversions.image_msg_to_bgr(msg)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('bags', nargs='+', help='simulator bags (BAG.gt.json beside each)')
     parser.add_argument('--base', required=True, type=Path, help='baseline source tree')
+    parser.add_argument('--targets', nargs='+', default=['sheet', 'cube', 'auto'],
+                        choices=['sheet', 'cube', 'auto'], help="('sheet': the bag's own)")
     args = parser.parse_args()
     cv2.setNumThreads(1)
-    import json
     times: dict[tuple[str, str], list[float]] = {}
     with tempfile.TemporaryDirectory() as tmp:
         old = load_base(args.base, Path(tmp))
         for path in args.bags:
-            gt = json.loads(Path(path + '.gt.json').read_text())
-            K = np.array(gt['camera']['K'], float)
-            sheet = gt['scene']['variant']['target']
-            sheet = 'letter' if sheet == 'cube' else sheet
+            gt, K, sheet = bag_sheet(path)
+            kinds = [sheet if t == 'sheet' else t for t in args.targets]
             trackers = {(name, target): _tracker(mod, target) for name, mod in
-                        (('base', old), ('new', new)) for target in (sheet, 'cube', 'auto')}
+                        (('base', old), ('new', new)) for target in kinds}
             histories = {(name, target): _history(mod, target) for name, mod in
-                         (('base', old), ('new', new)) for target in (sheet, 'cube', 'auto')}
-            with bagio.open_bag(path) as reader:
-                for k, raw in enumerate(reader.messages([gt['bag']['image_topic']])):
-                    msg = reader.deserialize(raw)
-                    img = conversions.compressed_msg_to_bgr(msg) \
-                        if raw.msgtype.endswith('CompressedImage') \
-                        else conversions.image_msg_to_bgr(msg)
-                    order = (('base', old), ('new', new))
-                    for target in (sheet, 'cube', 'auto'):
-                        for name, mod in order if k % 2 else order[::-1]:
-                            cfg = mod.DetectConfig(target=target)
-                            # (only what the tree has: a base tree may lack either)
-                            kwargs = {key: state for key, state in (
-                                ('tracker', trackers[(name, target)]),
-                                ('sheet_history', histories[(name, target)]))
-                                if state is not None}
-                            t0 = time.process_time()
-                            mod.detect(img, cfg, K, **kwargs)
-                            kind = target if target in ('cube', 'auto') else 'sheet'
-                            times.setdefault((name, kind), []).append(
-                                1e3 * (time.process_time() - t0))
-    for kind in ('sheet', 'cube', 'auto'):
+                         (('base', old), ('new', new)) for target in kinds}
+            for k, img in enumerate(bag_frames(path, gt)):
+                order = (('base', old), ('new', new))
+                for target in kinds:
+                    for name, mod in order if k % 2 else order[::-1]:
+                        cfg = mod.DetectConfig(target=target)
+                        # (only what the tree has: a base tree may lack either)
+                        kwargs = {key: state for key, state in (
+                            ('tracker', trackers[(name, target)]),
+                            ('sheet_history', histories[(name, target)]))
+                            if state is not None}
+                        t0 = time.process_time()
+                        mod.detect(img, cfg, K, **kwargs)
+                        kind = target if target in ('cube', 'auto') else 'sheet'
+                        times.setdefault((name, kind), []).append(
+                            1e3 * (time.process_time() - t0))
+    for kind in args.targets:
         b, n = np.array(times[('base', kind)]), np.array(times[('new', kind)])
         bm, bp, nm, np95 = np.median(b), np.percentile(b, 95), np.median(n), np.percentile(n, 95)
         print(f'{kind:6s} base median {bm:6.2f} p95 {bp:6.2f} ms | new median {nm:6.2f} '
