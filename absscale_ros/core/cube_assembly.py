@@ -5,7 +5,7 @@ Corners of different faces that meet are one cube vertex: the point nearest (lea
 to all the edges meeting there, as the paper does when three edges do not meet exactly.
 """
 import dataclasses
-from typing import TYPE_CHECKING
+from typing import Callable, TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -17,6 +17,8 @@ if TYPE_CHECKING:
     from absscale_ros.core.detect_cube import Face
 
 Array = npt.NDArray[np.float64]
+# (colour, outlines (K, 2) px) -> index of the outline that the image's pixels fit best
+OutlineFit = Callable[[str, list[Array]], int]
 MIN_POSING_ASPECT = 0.35  # a narrower face (seen nearly edge-on) poses the cube poorly
 BORDER_PX = 2.0  # a face corner this close to the image border is where the border cuts it
 
@@ -107,7 +109,8 @@ def _explained(faces: list['Face'], vertices: Array, Ks: list[Array], tol_frac: 
 
 def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks: list[Array],
                    shape: tuple[int, ...], shape_tol_frac: float, loose_ramp_px: float = 0.0,
-                   outline: list[float | None] | None = None) -> targets.TargetDetection | None:
+                   outline: list[float | None] | None = None,
+                   best_outline: OutlineFit | None = None) -> targets.TargetDetection | None:
     """
     Assemble vertices (least-squares points of meeting edges), ids and edges of a cube.
 
@@ -118,6 +121,8 @@ def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks:
     two colours meet is left. When the sharp poses leave none, cut faces whose sides ramp
     over at most ``loose_ramp_px`` pose the cube too (``_explained``). Appends to ``outline``
     the area px of the posed cube's outline within the image (``posed_area``) of a detection.
+    A strip's ends follow the cube's edges where the believed pose puts them
+    (``cube_geometry.complete_strip``), unless ``best_outline`` prefers it as measured.
     """
     # (nor the two corners where the image border cuts a face: the border's, not the cube's,
     # nor a corner beyond it)
@@ -171,15 +176,31 @@ def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks:
     score = float(np.mean([f.supports.mean() for f in faces]))
     if outline is not None:
         outline.append(None if proj is None else posed_area(proj[0], shape))
-    # A strip's ends follow the cube's edges where a believed pose puts them.
     # A face joined across a post in front (``Face.seen``) shows its pieces only.
-    polygons = tuple((f.colour, cube_geometry.complete_strip(*proj, f.corners_px)
-                      if f.thin and proj is not None else f.corners_px) for f in faces
-                     if not f.seen) + tuple((f.colour, p) for f in faces for p in f.seen)
+    polygons = tuple((f.colour, _strip_outline(f, proj, best_outline) if f.thin else
+                      f.corners_px) for f in faces if not f.seen) + \
+        tuple((f.colour, p) for f in faces for p in f.seen)
     return targets.TargetDetection(
         target_type='cube', name='cube', vertices_px=vertices, vertex_ids=ids,
         edges=np.array(sorted(edges), dtype=np.int64).reshape(-1, 2), polygons=polygons,
         score=score)
+
+
+def _strip_outline(face: 'Face', proj: cube_geometry.Posed | None,
+                   best_outline: OutlineFit | None) -> Array:
+    """
+    Return the outline of a strip (a face seen edge-on): its far corners where the believed
+    pose ``proj`` puts them, or as measured along the shared side's normal when
+    ``best_outline`` finds that the image fits better (a face seen nearly square-on poses
+    the depth of its neighbours loosely: a top a few px wide was drawn up to ~15 px long at
+    each end, and wider).
+    """
+    if proj is None:
+        return face.corners_px
+    posed = cube_geometry.complete_strip(*proj, face.corners_px)
+    if best_outline is None or posed is face.corners_px:
+        return posed
+    return [posed, face.corners_px][best_outline(face.colour, [posed, face.corners_px])]
 
 
 def posed_area(proj: Array, shape: tuple[int, ...]) -> float:

@@ -197,3 +197,25 @@ def _runs_on(image_bgr: npt.NDArray[np.uint8], strips: list[Array], colours: lis
     masks = masks_of(bgr)
     return [bool(masks[c][2 * j:2 * j + 2].mean(axis=1).max() >= min_frac)
             for j, c in enumerate(colours)]
+
+
+def best_outline(image_bgr: npt.NDArray[np.uint8], colour: str, outlines: list[Array],
+                 masks_of: MaskFn) -> int:
+    """
+    Return the index of the outline (K, 2) px of a face of ``colour`` that the image fits
+    best: the pixels inside it of that colour less those of any other (``cube_split``'s quad
+    fit), in one window around all of them and one colour test.
+    """
+    h, w = image_bgr.shape[:2]
+    pts = np.concatenate(outlines)
+    x0, y0 = np.clip(np.floor(pts.min(axis=0)).astype(int) - 1, 0, [w - 1, h - 1])
+    x1, y1 = np.clip(np.ceil(pts.max(axis=0)).astype(int) + 2, [x0 + 1, y0 + 1], [w, h])
+    mine = masks_of(image_bgr[y0:y1, x0:x1])[colour]
+    fits = []
+    for outline in outlines:
+        inside = np.zeros(mine.shape, np.uint8)
+        cv2.fillPoly(inside, [np.round((outline - [x0, y0]) * 16).astype(np.int32)
+                              .reshape(-1, 1, 2)], 1, shift=4)
+        both = int(np.count_nonzero(mine & (inside > 0)))
+        fits.append(2 * both - int(np.count_nonzero(inside)))
+    return int(np.argmax(fits))

@@ -666,19 +666,23 @@ def _split_faces(image_bgr: npt.NDArray[np.uint8], regions: _Regions,
     return [f for f in _refine_each(image_bgr, rough, cfg, pieces=True) if f is not None]
 
 
+def _masks_of(cfg: CubeConfig) -> cube_strips.MaskFn:
+    """Return the cube colour test of BGR samples (``cube_strips.MaskFn``)."""
+    def masks_of(bgr: npt.NDArray[np.uint8]) -> dict[str, npt.NDArray[np.bool_]]:
+        hsv = cv2.cvtColor(bgr, cv2.COLOR_BGR2HSV)
+        return {c: m > 0 for c, m in colour_masks(hsv, cfg).items()}
+    return masks_of
+
+
 def _strips(image_bgr: npt.NDArray[np.uint8], faces: list[Face], cfg: CubeConfig
             ) -> list[Face]:
     """Return thin faces (strips of another cube colour) along unshared face sides."""
     if cfg.strip_max_px <= 0.0:
         return []
-
-    def masks_of(bgr: npt.NDArray[np.uint8]) -> dict[str, npt.NDArray[np.bool_]]:
-        hsv = cv2.cvtColor(bgr, cv2.COLOR_BGR2HSV)
-        return {c: m > 0 for c, m in colour_masks(hsv, cfg).items()}
     out = []
     for colour, corners, support, runs_on in cube_strips.strip_faces(
-            image_bgr, [f.corners_px for f in faces], [f.colour for f in faces], masks_of,
-            cfg.strip_max_px):
+            image_bgr, [f.corners_px for f in faces], [f.colour for f in faces],
+            _masks_of(cfg), cfg.strip_max_px):
         out.append(Face(colour, corners, lines.side_lines(corners), np.full(4, support),
                         thin=True, runs_on=runs_on))
     return out
@@ -821,7 +825,9 @@ def _cubes(image_bgr: npt.NDArray[np.uint8], faces: list[Face], cfg: CubeConfig,
         outline: list[float | None] = []
         det = cube_assembly.cube_detection(
             [faces[f] for f in members], [labels[4 * f:4 * f + 4] for f in members],
-            Ks, image_bgr.shape, cfg.shape_tol_frac, cfg.cut_loose_ramp_px, outline)
+            Ks, image_bgr.shape, cfg.shape_tol_frac, cfg.cut_loose_ramp_px, outline,
+            lambda colour, outlines: cube_strips.best_outline(image_bgr, colour, outlines,
+                                                              _masks_of(cfg)))
         if det is None:
             continue
         if outline[0] is not None and area > (1.0 + cfg.outline_excess_frac) * outline[0]:

@@ -1,0 +1,43 @@
+"""
+Cube faces seen edge-on (strips) on simulator frames: the outline drawn for the top must lie
+on the top. On 4/154 the cube posed on a face seen nearly square-on put the strip's far
+corners ~15 px along its side (65 % of the red drawn lay on the top).
+"""
+from pathlib import Path
+import sys
+
+import numpy as np
+import pytest
+
+from absscale_ros.tools import bench_detect
+
+sys.path.insert(0, str(Path(__file__).parent))
+import sim_cube_frames  # noqa: E402
+
+FOLDER = 'sim_cube_strips'
+SHAPE = (720, 1280)
+
+
+def _top_precision(fr, dets) -> tuple[float, int]:
+    """Return (share of the top colour's drawn pixels on the true top, those pixels)."""
+    colour = fr['variant']['top_colour']
+    # Of the two faces of that colour, the top is the higher in the image (seen from above).
+    quads = [np.array([fr['vertices_px'][v] for v in f['vertex_ids']]) for f in fr['faces']
+             if f['colour'] == colour]
+    truth = bench_detect._poly_mask(SHAPE, min(quads, key=lambda q: q[:, 1].mean())) > 0
+    drawn = np.zeros(SHAPE, bool)
+    for d in dets:
+        for lab, poly in d.polygons:
+            if lab == colour:
+                drawn |= bench_detect._poly_mask(SHAPE, poly) > 0
+    n = int(drawn.sum())
+    return (drawn & truth).sum() / max(n, 1), n
+
+
+@pytest.mark.parametrize('name', sorted(sim_cube_frames.frames(FOLDER)))
+def test_top_strip_lies_on_the_top(name):
+    fr, dets = sim_cube_frames.cubes(FOLDER, name)
+    assert len(dets) == 1, fr['what']
+    precision, drawn = _top_precision(fr, dets)
+    assert drawn > 300, fr['what']  # the top is drawn
+    assert precision > 0.85, fr['what']
