@@ -28,10 +28,11 @@ PROFILES = 16  # profiles per side
 
 
 def _shared(face_corners: list[Array], tol_frac: float, min_tol: float
-            ) -> npt.NDArray[np.bool_]:
+            ) -> npt.NDArray[np.int64]:
     """
-    Return (F, 4) True where another face has corners at both ends of side ``i`` of face
-    ``f`` (within ``max(min_tol, tol_frac * side length)``), for all sides at once.
+    Return (F, 4) the index of another face with corners at both ends of side ``i`` of face
+    ``f`` (within ``max(min_tol, tol_frac * side length)``), -1 for none, for all sides at
+    once.
     """
     pts = np.concatenate(face_corners)  # (4F, 2)
     nf = len(face_corners)
@@ -43,7 +44,7 @@ def _shared(face_corners: list[Array], tol_frac: float, min_tol: float
     tol = np.maximum(min_tol, tol_frac * length)[..., None]
     both = (near[ends] < tol) & (near[nxt] < tol)  # (F, 4, F)
     both[np.arange(nf), :, np.arange(nf)] = False  # not the face itself
-    return both.any(axis=2)
+    return np.where(both.any(axis=2), np.argmax(both, axis=2), -1)
 
 
 def _widths(inside: npt.NDArray[np.bool_], offs: Array, ks: npt.NDArray[np.int64]) -> Array:
@@ -95,7 +96,8 @@ def _half_step(bgr: Array, w: Array, offs: Array) -> Array:
 
 def strip_faces(image_bgr: npt.NDArray[np.uint8], corners: list[Array], colours: list[str],
                 masks_of: MaskFn, max_width: float, min_width: float = 1.5,
-                min_frac: float = 0.5) -> list[tuple[str, Array, float, bool]]:
+                min_frac: float = 0.5, width_tol: float = 1.5
+                ) -> list[tuple[str, Array, float, bool]]:
     """
     Return (colour, (4, 2) corners px, support, mute) of thin strips along unshared face
     sides; "mute" (no evidence for a cube pose) when the strip's colour goes on past an end
@@ -110,6 +112,8 @@ def strip_faces(image_bgr: npt.NDArray[np.uint8], corners: list[Array], colours:
     :param min_frac: share of the profiles that must find the strip: a box of the strip's
         colour just behind the cube runs some profiles on past ``max_width`` (the shape check
         then decides whether the strip agrees with the cube).
+    :param width_tol: a profile this close to the strip's width line, px, agrees with it
+        (``_width_line``; 0: one line through all of them).
     """
     # Every unshared side of every face, sampled in one remap and one colour test.
     ts = 0.15 + 0.7 * (np.arange(PROFILES) + 0.5) / PROFILES
@@ -120,7 +124,7 @@ def strip_faces(image_bgr: npt.NDArray[np.uint8], corners: list[Array], colours:
     length = np.hypot(*(pts[:, [1, 2, 3, 0]] - pts).transpose(2, 0, 1))  # (F, 4)
     reach = np.searchsorted(offs, np.minimum(max_width, 0.5 * length) + 1e-9)
     centres = pts.mean(axis=1)
-    for f, i in zip(*np.nonzero((length >= 8.0) & ~shared)):
+    for f, i in zip(*np.nonzero((length >= 8.0) & (shared < 0))):
         c0, c1 = pts[f, i], pts[f, (i + 1) % 4]
         cand.append((int(f), int(i), c0, c1,
                      lines.line_through(c0, c1, centres[f])[:2], int(reach[f, i])))
@@ -144,14 +148,13 @@ def strip_faces(image_bgr: npt.NDArray[np.uint8], corners: list[Array], colours:
     for s_, o in zip(*np.nonzero(shares.T >= min_frac)):  # (side, colour) pairs, in order
         f, i, c0, c1, n, k = cand[s_]
         other = names[o]
-        if other == colours[f]:
+        if other == colours[f] or _unlike_cube(other, [colours[g] if g >= 0 else '' for g in
+                                                       shared[f, [(i + 1) % 4, (i + 2) % 4,
+                                                                  (i + 3) % 4]]]):
             continue
         ok = oks[o, s_]
         w = _half_step(samples[s_, :, :k].astype(np.float64), widths[o, s_], offs[:k])
-        t, wk = ts[ok], w[ok]  # a least-squares line: width linear along the side
-        tm, wm = t.mean(), wk.mean()
-        slope = ((t - tm) * (wk - wm)).sum() / ((t - tm) ** 2).sum()
-        w0, w1 = wm - slope * tm, wm + slope * (1.0 - tm)
+        w0, w1 = _width_line(ts[ok], w[ok], width_tol)
         if max(w0, w1) < min_width or min(w0, w1) < -min_width:
             continue
         # A strip may taper to nothing (a top seen at a grazing angle: half of it above
@@ -172,6 +175,48 @@ def strip_faces(image_bgr: npt.NDArray[np.uint8], corners: list[Array], colours:
                   if c == d and (j - i) % 4 in (1, 3)}
         out += [(c, strip, sup, on) for _, c, strip, sup, on in face_found if c not in behind]
     return out
+
+
+def _width_line(t: Array, w: Array, tol: float) -> tuple[float, float]:
+    """
+    Return a strip's widths (w0, w1) at the two ends of its side, px: a least-squares line
+    (width linear along the side: a foreshortened face is a trapezoid) through the profiles'
+    widths ``w`` at ``t`` (0-1 along the side) that the most of them lie within ``tol`` px
+    of (0: through all of them), when that is at least half of them and every other one lies
+    beyond it: where a box of the strip's colour stands behind part of it, its profiles run
+    on into the box and tilt a line fitted to all of them (a box only lengthens them; a top
+    whose far corner lies above the side widens, then narrows: no line fits it, and all of
+    them count).
+    """
+    def fit(keep: npt.NDArray[np.bool_]) -> tuple[float, float]:
+        tk, wk = t[keep], w[keep]
+        tm, wm = tk.mean(), wk.mean()
+        slope = ((tk - tm) * (wk - wm)).sum() / max(((tk - tm) ** 2).sum(), 1e-12)
+        return wm - slope * tm, wm + slope * (1.0 - tm)
+    i, j = np.triu_indices(len(t), 1)
+    pair = t[j] != t[i]
+    i, j = i[pair], j[pair]
+    slopes = (w[j] - w[i]) / (t[j] - t[i])
+    near = np.abs(w[i][:, None] + slopes[:, None] * (t[None] - t[i][:, None]) - w[None]) \
+        <= tol  # (pairs, profiles): within the line through each pair of profiles
+    counts = near.sum(axis=1)
+    if tol <= 0.0 or not len(counts) or counts.max() == len(t) or 2 * counts.max() < len(t):
+        return fit(np.ones(len(t), bool))
+    best = int(np.argmax(counts))
+    beyond = w > w[i[best]] + slopes[best] * (t - t[i[best]])
+    return fit(near[best] if (beyond | near[best]).all() else np.ones(len(t), bool))
+
+
+def _unlike_cube(colour: str, beyond: list[str]) -> bool:
+    """
+    Return True when a strip of ``colour`` along a face's side cannot be a cube face: the
+    colours of the faces sharing the face's next, opposite and previous sides (``''`` for
+    none) show that opposite faces are alike, so the side across from a shared one borders
+    that face's colour and its two neighbours the third colour (a box of a cube colour
+    behind a side face, beside its far side, is no top).
+    """
+    nxt, opposite, prev = beyond
+    return (opposite != '' and opposite != colour) or colour in (nxt, prev)
 
 
 def _runs_on(image_bgr: npt.NDArray[np.uint8], strips: list[Array], colours: list[str],

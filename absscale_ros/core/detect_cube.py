@@ -69,6 +69,9 @@ class CubeConfig:
     :param work_max_side_px: the mask stage runs on an image at most this big.
     :param strip_max_px: widest face seen edge-on looked for as a strip along a face side
         (``cube_strips``; 0 turns it off).
+    :param strip_width_tol_px: a strip's width is a line along its side through the profiles
+        that the most of them lie within this many px of, when every other one is wider (a
+        box of the strip's colour behind part of it; 0: through all of them).
     :param shape_tol_frac: a vertex farther than this fraction of a face's side from where
         the cube posed on that face puts it is left out (``cube_geometry``).
     :param focal_fracs: focal lengths over the larger image side tried in that check without
@@ -140,6 +143,7 @@ class CubeConfig:
     min_step: float = 15.0
     work_max_side_px: int = 640
     strip_max_px: float = 20.0
+    strip_width_tol_px: float = 1.5
     shape_tol_frac: float = 0.04
     focal_fracs: tuple[float, ...] = (0.5, 0.7, 0.9, 1.2, 1.6)
     blur_bands_px: tuple[float, ...] = (12.0, 24.0)
@@ -682,7 +686,7 @@ def _strips(image_bgr: npt.NDArray[np.uint8], faces: list[Face], cfg: CubeConfig
     out = []
     for colour, corners, support, runs_on in cube_strips.strip_faces(
             image_bgr, [f.corners_px for f in faces], [f.colour for f in faces],
-            _masks_of(cfg), cfg.strip_max_px):
+            _masks_of(cfg), cfg.strip_max_px, width_tol=cfg.strip_width_tol_px):
         out.append(Face(colour, corners, lines.side_lines(corners), np.full(4, support),
                         thin=True, runs_on=runs_on))
     return out

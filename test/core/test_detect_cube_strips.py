@@ -1,7 +1,10 @@
 """
 Cube faces seen edge-on (strips) on simulator frames: the outline drawn for the top must lie
 on the top. On 4/154 the cube posed on a face seen nearly square-on put the strip's far
-corners ~15 px along its side (65 % of the red drawn lay on the top).
+corners ~15 px along its side (65 % of the red drawn lay on the top). On 70o/159 a red box
+behind the cube gave a red strip along the far side of the yellow face (a side face: the face
+across from it is purple), and its profiles behind the top tilted the top's width line from 7
+px at both ends to 0 and 23 px (27 % on the top).
 """
 from pathlib import Path
 import sys
@@ -41,3 +44,10 @@ def test_top_strip_lies_on_the_top(name):
     precision, drawn = _top_precision(fr, dets)
     assert drawn > 300, fr['what']  # the top is drawn
     assert precision > 0.85, fr['what']
+
+
+def test_a_box_behind_part_of_the_top_does_not_widen_it():
+    # With one width line through all of the top's profiles, the 6 that run on into the red
+    # box behind tilt it to a wedge (0 to 23 px where the top is ~7 px wide).
+    fr, dets = sim_cube_frames.cubes(FOLDER, 'outdoor_cube_70o_159.jpg', strip_width_tol_px=0.0)
+    assert _top_precision(fr, dets)[0] < 0.6
