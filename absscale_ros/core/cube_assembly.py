@@ -85,7 +85,8 @@ def _posing(face: 'Face') -> bool:
 
 
 def _explained(faces: list['Face'], vertices: Array, Ks: list[Array], tol_frac: float,
-               loose_ramp_px: float) -> tuple[npt.NDArray[np.bool_], cube_geometry.Posed | None]:
+               loose_ramp_px: float, carry_widen: float
+               ) -> tuple[npt.NDArray[np.bool_], cube_geometry.Posed | None]:
     """
     Return ``cube_geometry.explained`` of a cube's vertices (V, 2) px by its posing faces:
     whole ones, and cut ones completed from their seen whole side and the two sides leaving
@@ -102,13 +103,49 @@ def _explained(faces: list['Face'], vertices: Array, Ks: list[Array], tol_frac: 
     posing = [p or f in completed for f, p in enumerate(posing)]
     # A smeared cut face poses nothing, but its seen part still lies where a pose puts it.
     return cube_geometry.explained(vertices, list(np.flatnonzero(posing)),
-                                   [f.corners_px for f in faces], [f.thin for f in faces],
+                                   _completed_strips(faces, completed, carry_widen),
+                                   [f.thin for f in faces],
                                    [f.runs_on and f.cut < 0 for f in faces], Ks, tol_frac,
                                    completed)
 
 
+def _completed_strips(faces: list['Face'], completed: dict[int, Array], carry_widen: float
+                      ) -> list[Array]:
+    """
+    Return the faces' outlines, with each strip along a side of a ``completed`` cut face
+    carried on, along its side and its far side, to the corner the completion puts where the
+    border or a post cuts that side: seen, the strip ends there too, on no cube vertex (the
+    cube posed on the completed face would never agree with it). Not when that widens it to
+    over ``carry_widen`` times its widest end seen (0: never): a face seen edge-on keeps its
+    width within ~1.5x over its length, so a wedge is no such face (a strip tapering from 25 px
+    to 1 beside a box of a face's colour, carried on to 68 px, agreed with that box's pose).
+    """
+    polys = [f.corners_px for f in faces]
+    for f, corners in completed.items():
+        cut = faces[f].cut
+        for g, strip in enumerate(polys):
+            if not faces[g].thin:
+                continue
+            for end, far, other in ((0, 1, 3), (3, 2, 0)):
+                for c in (cut, (cut + 1) % 4):
+                    if not np.array_equal(strip[end], faces[f].corners_px[c]):
+                        continue
+                    along = strip[other] - strip[end]
+                    t = (corners[c] - strip[end]) @ along / max(float(along @ along), 1e-12)
+                    carried = strip.copy()
+                    carried[far] = strip[far] + t * (strip[3 - far] - strip[far])
+                    carried[end] = corners[c]
+                    widest = max(np.hypot(*(strip[1] - strip[0])),
+                                 np.hypot(*(strip[2] - strip[3])))
+                    if np.hypot(*(carried[far] - carried[end])) <= carry_widen * widest:
+                        strip = carried
+            polys[g] = strip
+    return polys
+
+
 def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks: list[Array],
                    shape: tuple[int, ...], shape_tol_frac: float, loose_ramp_px: float = 0.0,
+                   carry_widen: float = 0.0,
                    outline: list[float | None] | None = None,
                    best_outline: OutlineFit | None = None) -> targets.TargetDetection | None:
     """
@@ -119,7 +156,8 @@ def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks:
     that no cube pose explains (``cube_geometry``) and corners where the image border cuts a
     face are left out, and faces left with none of their corners; None when no vertex where
     two colours meet is left. When the sharp poses leave none, cut faces whose sides ramp
-    over at most ``loose_ramp_px`` pose the cube too (``_explained``). Appends to ``outline``
+    over at most ``loose_ramp_px`` pose the cube too (``_explained``; ``carry_widen``: see
+    ``_completed_strips``). Appends to ``outline``
     the area px of the posed cube's outline within the image (``posed_area``) of a detection.
     A strip's ends follow the cube's edges where the believed pose puts them
     (``cube_geometry.complete_strip``), unless ``best_outline`` prefers it as measured.
@@ -152,10 +190,11 @@ def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks:
             for c in range(4) if c not in cs and not (f.tip and c == (f.cut + 3) % 4)}
     ok &= np.array([k not in lost for k in keys])
     two = np.array([bin(int(m)).count('1') >= 2 for m in masks])  # colours meet there
-    keep, proj = _explained(faces, vertices, Ks, shape_tol_frac, 0.0)
+    keep, proj = _explained(faces, vertices, Ks, shape_tol_frac, 0.0, carry_widen)
     if not (keep & ok & two).any() and any(f.cut >= 0 and f.runs_on and
                                            f.ramp_px <= loose_ramp_px for f in faces):
-        keep, proj = _explained(faces, vertices, Ks, shape_tol_frac, loose_ramp_px)
+        keep, proj = _explained(faces, vertices, Ks, shape_tol_frac, loose_ramp_px,
+                                carry_widen)
     keep &= ok
     if not (keep & two).any():
         return None

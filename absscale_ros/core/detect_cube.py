@@ -72,6 +72,10 @@ class CubeConfig:
     :param strip_width_tol_px: a strip's width is a line along its side through the profiles
         that the most of them lie within this many px of, when every other one is wider (a
         box of the strip's colour behind part of it; 0: through all of them).
+    :param strip_carry_widen: a strip along a side of a face the border or a post cuts, and
+        cut there too, is carried on to the corner the face's completion puts there for the
+        shape check when that widens it to at most this many times its widest end seen (0:
+        never; ``cube_assembly._completed_strips``).
     :param shape_tol_frac: a vertex farther than this fraction of a face's side from where
         the cube posed on that face puts it is left out (``cube_geometry``).
     :param focal_fracs: focal lengths over the larger image side tried in that check without
@@ -144,6 +148,7 @@ class CubeConfig:
     work_max_side_px: int = 640
     strip_max_px: float = 20.0
     strip_width_tol_px: float = 1.5
+    strip_carry_widen: float = 2.0
     shape_tol_frac: float = 0.04
     focal_fracs: tuple[float, ...] = (0.5, 0.7, 0.9, 1.2, 1.6)
     blur_bands_px: tuple[float, ...] = (12.0, 24.0)
@@ -829,7 +834,8 @@ def _cubes(image_bgr: npt.NDArray[np.uint8], faces: list[Face], cfg: CubeConfig,
         outline: list[float | None] = []
         det = cube_assembly.cube_detection(
             [faces[f] for f in members], [labels[4 * f:4 * f + 4] for f in members],
-            Ks, image_bgr.shape, cfg.shape_tol_frac, cfg.cut_loose_ramp_px, outline,
+            Ks, image_bgr.shape, cfg.shape_tol_frac, cfg.cut_loose_ramp_px,
+            cfg.strip_carry_widen, outline,
             lambda colour, outlines: cube_strips.best_outline(image_bgr, colour, outlines,
                                                               _masks_of(cfg)))
         if det is None:

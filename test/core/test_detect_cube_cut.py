@@ -4,7 +4,7 @@ import sys
 
 import numpy as np
 
-from absscale_ros.core import cube_border
+from absscale_ros.core import cube_assembly, cube_border
 
 sys.path.insert(0, str(Path(__file__).parent))
 import sim_cube_frames  # noqa: E402
@@ -65,6 +65,32 @@ def test_post_cut_face_completed_keeps_the_seen_vertices():
     fr, dets = _cubes('outdoor_cube_72_200.jpg')
     assert len(dets) == 1 and len(dets[0].vertices_px) >= 5
     assert {c for c, _ in dets[0].polygons} == {'red', 'yellow', 'purple'}
+
+
+def test_strip_along_a_post_cut_face_confirms_its_completion(monkeypatch):
+    # The post cuts the yellow face along its left side; the purple top seen edge-on above it
+    # ends at the post too, on no cube vertex. Carried on to the corner the completion hides
+    # behind the post, it confirms the cube posed on the completed face: the two vertices
+    # seen, to a pixel.
+    fr, dets = _cubes('outdoor_cube_72_183.jpg')
+    assert len(dets) == 1
+    err = sim_cube_frames.errors(fr, dets[0])
+    assert len(err) == 2 and (err[:, 0] < 1.0).all(), err
+    monkeypatch.setattr(cube_assembly, '_completed_strips', lambda faces, completed, widen:
+                        [f.corners_px for f in faces])
+    assert not _cubes('outdoor_cube_72_183.jpg')[1]
+
+
+def test_a_wedge_is_not_carried_on_to_a_completed_corner():
+    # A yellow box behind the cube, taken for a face cut along a side, touches the purple
+    # face at its top vertex; the red top between them tapers from 25 px to 1. Carried on to
+    # the box's completed corner it would be 68 px wide, and agree with the box's pose: a
+    # vertex ~100 px off.
+    fr, dets = _cubes('outdoor_cube_31_1118.jpg')
+    assert dets and max(_off_px(fr, d).max() for d in dets) < 3.0
+    loose = _cubes('outdoor_cube_31_1118.jpg', strip_carry_widen=100.0)[1]
+    off = [_off_px(fr, d).max() for d in loose]
+    assert max(off) > 50.0
 
 
 def test_face_split_by_a_post_is_joined_from_its_pieces():
