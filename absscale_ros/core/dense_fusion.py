@@ -13,7 +13,8 @@ materially, rescaled when only the scale changed, and otherwise just moved with 
 A keyframe also gets a plane-sweep depth map over its neighbours (``dense_sweep``, at a lower
 resolution), which covers what its pairs cannot: where the camera moved along its view. Its
 points are kept where no pair of the keyframe has depth, and it votes for the pairs' points.
-Optionally (``dense_facade``) far planes fitted to a wide-baseline sweep fill what is left.
+Optionally (``dense_facade``) far planes fitted to a wide-baseline sweep fill what is left,
+and (``dense_fill``) plain holes get the plane of the points around them.
 """
 from dataclasses import dataclass, field
 from typing import Any
@@ -22,7 +23,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from absscale_ros.core import dense_cloud, dense_facade, dense_stereo, dense_sweep
+from absscale_ros.core import dense_cloud, dense_facade, dense_fill, dense_stereo, dense_sweep
 from absscale_ros.core.types import CameraModel
 
 FloatArray = npt.NDArray[np.float64]
@@ -70,6 +71,7 @@ class _Keyframe:
     facade_with: dict[int, FloatArray] = field(default_factory=dict)  # far view -> T_nb_kf
     planes: list[tuple[FloatArray, int]] = field(default_factory=list)  # far planes p (p.X = 1
     # in its camera) and the pixels that refined each
+    filled: bool = False  # its cloud holds the plane fill of its plain holes (``dense_fill``)
 
 
 def _measured(kf: _Keyframe) -> list[dense_stereo.DepthMap]:
@@ -107,10 +109,12 @@ class DenseFusion:
 
     def __init__(self, stereo: dense_stereo.StereoConfig, fusion: FusionConfig,
                  sweep: dense_sweep.SweepConfig | None = None,
-                 facade: dense_facade.FacadeConfig | None = None) -> None:
+                 facade: dense_facade.FacadeConfig | None = None,
+                 fill: dense_fill.FillConfig | None = None) -> None:
         self.stereo, self.cfg = stereo, fusion
         self.sweep = sweep or dense_sweep.SweepConfig()
         self.facade = facade or dense_facade.FacadeConfig()
+        self.fill = fill or dense_fill.FillConfig()
         self._frames: dict[int, _Keyframe] = {}
         self.depth_computed = 0  # stereo pairs run so far (recomputations included)
         self.sweeps_computed = 0  # plane sweeps run so far
@@ -156,7 +160,8 @@ class DenseFusion:
             kf = self._frames[s]
             if not kf.depths:
                 kf.cloud, kf.placed = None, None
-            elif outcome[i] == _NEW or kf.cloud is None:
+            elif outcome[i] == _NEW or kf.cloud is None or \
+                    not kf.filled and self._fill_ready(stamps, i):
                 kf.cloud, kf.placed = self._keyframe_cloud(stamps, i), None
             elif outcome[i] != 1.0:
                 kf.cloud.scale(outcome[i], np.zeros(3))  # a new scale: depth x baseline ratio
@@ -445,7 +450,33 @@ class DenseFusion:
                 pts = dense_stereo.transform(world - kf.pose[:3, 3], kf.pose[:3, :3].T)
             keep_pts.append(pts[keep])
             keep_col.append(colours[keep])
+        kf.filled = self._fill_ready(stamps, i)
+        if kf.filled:  # plain holes on a plane around them
+            pts, colours = self._filled(stamps, i, np.concatenate(keep_pts))
+            keep_pts.append(pts)
+            keep_col.append(colours)
         return dense_cloud.clean(np.concatenate(keep_pts), np.concatenate(keep_col), self.cfg)
+
+    def _fill_ready(self, stamps: list[int], i: int) -> bool:
+        """Whether keyframe ``i``'s plain holes are filled: once ``fill.lag`` later keyframes
+        exist, its neighbourhood (planes, votes) is whole; filled earlier, from the keyframes
+        before it alone, planes fitted to one side's points filled indoor 65 wrongly."""
+        return self.fill.enabled and self._frames[stamps[i]].view is not None and \
+            len(stamps) - 1 - i >= self.fill.lag
+
+    def _filled(self, stamps: list[int], i: int,
+                kept: FloatArray) -> tuple[FloatArray, npt.NDArray[np.uint8]]:
+        """Points (camera frame) and colours for keyframe ``i``'s plain holes among its
+        ``kept`` points, on the planes of its neighbourhood's depth (``dense_fill``)."""
+        colour, grey, K = self._frames[stamps[i]].view
+        planes = dense_fill.scene_planes(self._nearby_points(stamps, i, self.fill.stride),
+                                         self.fill)
+        depth = dense_fill.fill(dense_fill.depth_image(kept, K, grey.shape), grey, K, planes,
+                                self.fill)
+        v, u = np.nonzero(depth)
+        z = depth[v, u].astype(np.float64)
+        pts = np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], axis=1)
+        return pts, colour[v, u]
 
     def cloud(self) -> tuple[FloatArray, npt.NDArray[np.uint8], FloatArray]:
         """
