@@ -45,3 +45,13 @@ def test_loose_sharpening_only_where_the_strict_one_leaves_no_pentagon():
     # (the box's edge is kept: it is longer than BLUNT_PX)
     assert any(np.abs(sharp - [257, 114]).max(axis=1) < 1e-9)
     assert any(np.abs(sharp - [258, 126]).max(axis=1) < 1e-9)
+
+
+def test_the_loose_rule_is_not_asked_where_the_strict_one_gives_a_pentagon():
+    """It would also take an occluder's short cut (6 px, between a 12 px seen stretch and a
+    61 px side) for a blunted corner and leave four corners, losing the hypothesis."""
+    poly = np.array([[0, 3], [3, 0], [60, 0], [60, 12], [56, 16], [0, 40]], float)
+    assert len(sheet_partial.sharpened(poly, loose=True)) == 4
+    sharp = sheet_partial.sharp_pentagon(poly.astype(np.int32).reshape(-1, 1, 2), None)
+    assert sharp is not None and len(sharp) == 5
+    assert any(np.abs(sharp - [56, 16]).max(axis=1) < 1e-9)  # the cut's end is kept
