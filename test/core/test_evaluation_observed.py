@@ -1,7 +1,8 @@
 """
 The truth of a landmark from its own observations, on a rendered scene (the outdoor sample's
 ground truth): exact for real surface points, blind to the landmark's reconstructed position
-(unlike the truth projected through keyframes), and none for a feature seen on two surfaces.
+(unlike the truth projected through keyframes), and none for a feature seen on two surfaces
+or seen once.
 """
 from pathlib import Path
 
@@ -74,6 +75,8 @@ def test_observed_truth_ignores_the_landmarks_error_and_rejects_two_surfaces() -
     wrong[:20] = px[2][20:40]
     assert np.linalg.norm(points[:20] - points[20:40], axis=1).min() > 0.02
     obs[:20] = [(np.array(FRAMES), np.array([px[0][i], px[1][i], wrong[i]])) for i in range(20)]
+    # One observation alone is no agreement either.
+    obs[20:25] = [(np.array(FRAMES[:1]), px[0][i:i + 1]) for i in range(20, 25)]
     truth = evaluation.observed_truth(obs, camera, _behind(gt))
-    assert np.isnan(truth[:20]).all()
-    assert np.linalg.norm(truth[20:] - points[20:], axis=1).max() < 2e-4
+    assert np.isnan(truth[:25]).all()
+    assert np.linalg.norm(truth[25:] - points[25:], axis=1).max() < 2e-4
