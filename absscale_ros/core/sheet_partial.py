@@ -27,7 +27,8 @@ FINE_BANDS = (4.0, 3.0)
 FINE_FRAC = 0.01  # of the hull's perimeter: the simplification that keeps blunted corners
 BLUNT_PX = 8.0  # work px: an edge this short between two longer ones is a blunted corner
 BLUNT_FRAC = 0.4  # ... and shorter than this fraction of both neighbours (a page of 0.6 % of
-# the image, seed 81: corners cut by edges of 4-7 work px, 0.34-0.6 of their neighbours)
+# the image, seed 81: corners cut by edges of 4-7 work px, 0.34-0.6 of their neighbours); of
+# the longer one only where that leaves no pentagon (``sharpened``'s ``loose``)
 # px inside every side of the seen outline: there the seen region's own outline is an
 # occluder's notch, which the outline follows (a box's corner reaching into the sheet)
 NOTCH_PX = 4.0
@@ -58,10 +59,12 @@ def pentagon(contour: npt.NDArray[np.int32]) -> Array | None:
 
 def sharp_pentagon(contour: npt.NDArray[np.int32], plain: Array | None) -> Array | None:
     """
-    Return the hull simplified finely with its blunted corners sharpened (``sharpened``) when
-    that leaves five vertices and differs from ``plain`` (the contour's ``pentagon``). A small
-    sheet in the work image has every corner cut by one short edge, so a five-vertex
-    simplification either spends a vertex on a blunted corner or drops the occluder's cut.
+    Return the hull simplified finely with its blunted corners sharpened (``sharpened``, the
+    loose rule only where the strict one leaves no five vertices: it would also take a short
+    occluder's cut for a blunted corner) when that leaves five vertices and differs from
+    ``plain`` (the contour's ``pentagon``). A small sheet in the work image has every corner
+    cut by one short edge, so a five-vertex simplification either spends a vertex on a
+    blunted corner or drops the occluder's cut.
     """
     hull = cv2.convexHull(contour)
     fine = cv2.approxPolyDP(hull, FINE_FRAC * cv2.arcLength(hull, True), True)
