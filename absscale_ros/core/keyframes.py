@@ -20,6 +20,7 @@ frame: a pause), times the time since it.
 """
 from collections import deque
 from dataclasses import dataclass
+
 import cv2
 import numpy as np
 import numpy.typing as npt
@@ -357,7 +358,8 @@ class KeyframeSelector:
         """
         Whether ``decide`` on ``m`` wants the target's area: the frame is a keyframe if the
         target is in view (whose vertices go out with it). Every other frame is decided the
-        same without it, so a detector asked only for these frames gives the same keyframes.
+        same without it (``no_target_factor`` >= 1: no frame becomes a keyframe sooner without
+        the target), so a detector asked only for these frames gives the same keyframes.
         """
         return m.reason == 'first' or (m.reason == '' and self._by_baseline(m, True)[0])
 
