@@ -60,3 +60,19 @@ def test_a_step_window_wider_than_the_stamp_pairing_is_refused(tmp_path) -> None
     wide.write_text(text.replace('    step_window: 4 ', '    step_window: 16 '))
     with pytest.raises(AbsScaleError, match='step_window 16 > keyframe_selector pair_depth 10'):
         graph.run_graph(str(tmp_path / 'no_bag_needed.mcap'), str(wide))
+
+
+def test_a_detector_on_request_beside_a_selector_that_never_asks_is_refused(tmp_path) -> None:
+    """It would look at no frame: the run would claim no scale instead of failing."""
+    text = params.find_config('outdoor_cube').read_text()
+    detector_on = text.replace('    detect_on_request: false  # offline: look only',
+                               '    detect_on_request: true  # offline: look only')
+    assert detector_on != text
+    alone = tmp_path / 'detector_alone.yaml'
+    alone.write_text(detector_on)
+    with pytest.raises(AbsScaleError, match='vertex_detector detect_on_request needs'):
+        graph.run_graph(str(tmp_path / 'no_bag_needed.mcap'), str(alone))
+    both = tmp_path / 'both.yaml'
+    both.write_text(detector_on.replace('    detect_on_request: false',
+                                        '    detect_on_request: true'))
+    graph._check_step_window(params.load_yaml(both))  # the selector asks: accepted
