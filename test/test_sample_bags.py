@@ -70,12 +70,19 @@ def test_scale_bench_configures_the_page_the_bag_holds(tmp_path: Path) -> None:
 
 
 def test_indoor_sample_claims_a_true_scale() -> None:
-    """The sheet path end to end: a letter page on a plain desk, 10 s of walking."""
+    """The sheet path end to end: a letter page on a plain desk, 10 s of walking. And bench
+    scale's Table 3 truth from the landmarks' own observations, read from the sfm's map (its
+    fallback, the projected truth, would pass silently)."""
     bag = BAG.parent / 'indoor_paper_sample.mcap'
-    report = graph.run_graph(str(bag), 'indoor_paper', graph.RunOptions(mode='step'))
+    seen: dict = {}
+    report = graph.run_graph(str(bag), 'indoor_paper', graph.RunOptions(mode='step'),
+                             inspect=lambda nodes: seen.update(
+                                 bench_scale._cloud_observations(nodes)))
     scale = report['nodes']['scale']
     assert scale['observable'], scale
     msgs = {t: deserialize_message(d, c) for t, (c, d) in report.pop('_latest').items()}
     truth = bench_scale.measure(str(bag), report, msgs, groundtruth.load(f'{bag}.gt.json'),
-                                lengths=False)
+                                observations=seen.get('observations'))
     assert scale['interval'][0] <= truth['true_factor'] <= scale['interval'][1], truth
+    assert truth['truth'] == 'observations', truth
+    assert truth['landmarks_with_truth'] >= 0.9 * truth['landmarks'] >= 30, truth
