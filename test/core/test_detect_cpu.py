@@ -238,3 +238,37 @@ def test_hidden_path_of_the_last_frame_tried_first_with_the_same_answer():
             np.testing.assert_allclose(got[0].vertices_px, want[0].vertices_px, atol=1e-4)
             np.testing.assert_allclose(got[0].scores(), want[0].scores(), atol=1e-6)
     assert {'stub', 'sharp', 'split'} <= paths
+
+
+def test_hidden_paths_after_the_last_frames_are_not_refined_when_it_finds_the_sheet(
+        monkeypatch):
+    """The point of ``hidden_path``: with the path that found the sheet as the prior, the
+    later paths' hypotheses are not built nor refined (one batch of the paths up to it)."""
+    data = Path(__file__).parents[1] / 'data' / 'sim_frames'
+    frames = [f for f in json.loads((data / 'frames.json').read_text())['frames']
+              if f.get('hidden_corner')]
+    batches: list[int] = []
+    refine = detect_sheet._accept_partial
+
+    def counted(image_bgr, paths, *args, **kwargs):
+        batches.append(len(paths))
+        return refine(image_bgr, paths, *args, **kwargs)
+    monkeypatch.setattr(detect_sheet, '_accept_partial', counted)
+    checked = 0
+    for fr in frames:
+        img, K = cv2.imread(str(data / fr['file'])), np.array(fr['K'])
+        cfg = detect.DetectConfig(target=fr['target'])
+        first = sheet_track.SheetHistory()
+        batches.clear()
+        detect.detect(img, cfg, K, sheet_history=first)
+        everything = batches[:1]
+        path = first.hidden_path
+        if path is None or path == detect_sheet.HIDDEN_PATHS[-1]:
+            continue
+        again = sheet_track.SheetHistory()
+        again.hidden_path = path
+        batches.clear()
+        detect.detect(img, cfg, K, sheet_history=again)
+        assert batches[:1] == [detect_sheet.HIDDEN_PATHS.index(path) + 1] < everything
+        checked += 1
+    assert checked >= 3
