@@ -12,6 +12,7 @@ import sys
 import numpy as np
 import pytest
 
+from absscale_ros.core import cube_strips
 from absscale_ros.tools import bench_detect
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -51,3 +52,17 @@ def test_a_box_behind_part_of_the_top_does_not_widen_it():
     # box behind tilt it to a wedge (0 to 23 px where the top is ~7 px wide).
     fr, dets = sim_cube_frames.cubes(FOLDER, 'outdoor_cube_70o_159.jpg', strip_width_tol_px=0.0)
     assert _top_precision(fr, dets)[0] < 0.6
+
+
+def test_width_line_leaves_out_only_profiles_wider_than_it():
+    """``_width_line``: the profiles off the line most lie on are left out when they are all
+    wider (a box of the strip's colour behind part of it), not when some are narrower (a
+    box only lengthens them; then all count)."""
+    t = (np.arange(16) + 0.5) / 16
+    boxed = np.where(t < 0.6, 5.0, 12.0)  # the last 6 run on into a box behind
+    assert np.allclose(cube_strips._width_line(t, boxed, 1.5), (5.0, 5.0))
+    narrow = np.full(16, 5.0)
+    narrow[[1, 4, 7, 10, 13, 15]] = 1.0  # 6 narrower ones: no box, all of them count
+    assert max(cube_strips._width_line(t, narrow, 1.5)) < 4.0
+    assert not np.allclose(cube_strips._width_line(t, boxed, 0.0),
+                           (5.0, 5.0))  # tol 0: through all of them
