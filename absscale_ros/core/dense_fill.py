@@ -50,13 +50,15 @@ class FillConfig:
     min_spread: float = 0.3  # the plane's rim points spread across the hole at least this x
     # its own spread, along its narrowest direction (not only along one side of it)
     border_open: bool = True  # a hole's stretch along the image border counts against it
-    band: float = 0.1  # filled depths beyond the plane's rim points' by more than this: not
+    band: float = 0.1  # filled depths beyond the plane's rim points' by more than this
+    # fraction: left empty
     max_slant_deg: float = 80.0  # a plane seen more obliquely (its depth runs away): no fill
 
     def __post_init__(self) -> None:
         if self.min_px < 1 or self.rim_px < 1 or self.min_rim < 3 or self.stride < 1 or \
                 not 0.0 < self.min_share <= 1.0 or not 0.0 <= self.enclosed <= 1.0 or \
-                self.window_px < 3 or self.plane_trials < 1:
+                self.window_px < 3 or self.plane_trials < 1 or self.lag < 0 or \
+                self.max_planes < 1 or self.max_holes < 1:
             raise ValueError(f'bad fill config: {self}')
 
 

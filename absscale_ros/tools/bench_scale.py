@@ -155,9 +155,11 @@ def _lengths(gt: dict[str, Any], msgs: dict[str, Any], idx: list[int],
     if observations is None or len(observations) != len(pts):
         return out  # no map, or not the published cloud's landmarks
     frame_of = {int(f['stamp_ns']): k for k, f in enumerate(gt['frames'])}  # type: ignore
-    truth = evaluation.observed_truth(
-        [(np.array([frame_of[int(s)] for s in stamps]), uv) for stamps, uv in observations],
-        camera, behind)
+    try:
+        seen = [(np.array([frame_of[int(s)] for s in stamps]), uv) for stamps, uv in observations]
+    except KeyError as err:  # a keyframe the gt.json has no frame for: another bag's truth
+        raise ValueError(f'keyframe stamp {err} is not in gt.json') from err
+    truth = evaluation.observed_truth(seen, camera, behind)
     out.update(truth='observations', landmarks_with_truth=int(np.isfinite(truth[:, 0]).sum()),
                lengths=evaluation.length_errors(pts, truth, np.random.default_rng(0)).__dict__,
                lengths_projected=out['lengths'],

@@ -9,6 +9,7 @@ from absscale_ros.sim import render, scenes
 from dense_scenes import sideways_keyframes
 from keyframe_scenes import _look_at
 import numpy as np
+import pytest
 
 FILL = dense_fill.FillConfig(enabled=True)
 
@@ -94,3 +95,10 @@ def test_fusion_with_the_fill_covers_more_of_the_wall_as_accurately() -> None:
     depth = np.median(np.linalg.norm(off - poses[0][:3, 3], axis=1))
     assert np.median(dist_on) <= np.median(dist_off) + 0.0005 * depth
     assert np.percentile(dist_on, 90) <= np.percentile(dist_off, 90) + 0.001 * depth
+
+
+@pytest.mark.parametrize('field', ['lag', 'max_planes', 'max_holes'])
+def test_a_fill_config_that_cannot_fill_is_refused(field: str) -> None:
+    """A negative lag, or no plane or hole to try, is a typo in a config, not a quiet no-op."""
+    with pytest.raises(ValueError):
+        dense_fill.FillConfig(**{field: -1 if field == 'lag' else 0})
