@@ -21,6 +21,7 @@ from absscale_ros.core.types import CameraModel
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
+_ORIGIN = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])  # x y z qx qy qz qw
 TruthFn = Callable[[int, FloatArray], FloatArray]  # (frame index, (N,2) px) -> (N,3) world m
 
 
@@ -49,13 +50,10 @@ def project(points: FloatArray, pose_xyzw: FloatArray, camera: CameraModel) -> F
 
 
 def distorted_px(pixels_px: FloatArray, camera: CameraModel) -> FloatArray:
-    """(N, 2) distorted pixels of (N, 2) undistorted ones (same ``K``), as ``project`` maps."""
-    import cv2
+    """(N, 2) distorted pixels of (N, 2) undistorted ones (same ``K``): ``project`` of their
+    rays at unit depth from a camera at the origin."""
     xy = (np.asarray(pixels_px, float).reshape(-1, 2) - camera.K[:2, 2]) / np.diag(camera.K)[:2]
-    rays = np.hstack([xy, np.ones((len(xy), 1))])
-    px, _ = cv2.projectPoints(rays.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), camera.K,
-                              camera.dist if camera.has_distortion else None)
-    return px.reshape(-1, 2)
+    return project(np.hstack([xy, np.ones((len(xy), 1))]), _ORIGIN, camera)
 
 
 def observed_truth(observations: list[tuple[IntArray, FloatArray]], camera: CameraModel,
