@@ -473,9 +473,7 @@ class DenseFusion:
                                          self.fill)
         depth = dense_fill.fill(dense_fill.depth_image(kept, K, grey.shape), grey, K, planes,
                                 self.fill)
-        v, u = np.nonzero(depth)
-        z = depth[v, u].astype(np.float64)
-        pts = np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], axis=1)
+        pts, v, u = dense_stereo.back_project(depth, K)
         return pts, colour[v, u]
 
     def cloud(self) -> tuple[FloatArray, npt.NDArray[np.uint8], FloatArray]:

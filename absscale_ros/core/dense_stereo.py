@@ -60,12 +60,18 @@ class DepthMap:
     def points_camera(self, stride: int = 1) -> tuple[FloatArray, npt.NDArray[np.uint8]]:
         """Valid pixels (every ``stride``-th row and column) as (N, 3) points in the
         keyframe's (unrectified) camera, and colours."""
-        v, u = np.nonzero(self.depth[::stride, ::stride] > 0)
-        v, u = v * stride, u * stride
-        z = self.depth[v, u].astype(np.float64)
-        K = self.K_rect
-        rect = np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], axis=1)
+        rect, v, u = back_project(self.depth, self.K_rect, stride)
         return transform(rect, self.R_rect.T), self.colour[v, u]
+
+
+def back_project(depth: npt.NDArray[np.floating], K: FloatArray, stride: int = 1
+                 ) -> tuple[FloatArray, npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+    """The pixels of a depth image (z, m; 0 = none) with depth, every ``stride``-th row and
+    column, as (N, 3) points in its pinhole camera ``K``, and their rows and columns."""
+    v, u = np.nonzero(depth[::stride, ::stride] > 0)
+    v, u = v * stride, u * stride
+    z = depth[v, u].astype(np.float64)
+    return np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], axis=1), v, u
 
 
 def transform(points: FloatArray, A: FloatArray, b: FloatArray | None = None) -> FloatArray:
