@@ -286,11 +286,10 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
         seen in the last frames (``cfg.aspect_history``); None: this frame alone.
     :returns: detections, best first; each has 4 corners ordered as in ``targets``.
     """
-    video = history  # (also without the aspect history: the hidden-corner path it found)
-    if history is not None and cfg.aspect_history > 0:
-        history.next_frame(cfg.aspect_history)
-    else:
-        history = None
+    # (the aspect errors with cfg.aspect_history only; the hidden-corner path of any video)
+    aspects = history if history is not None and cfg.aspect_history > 0 else None
+    if aspects is not None:
+        aspects.next_frame(cfg.aspect_history)
     h, w = image_bgr.shape[:2]
     scale = min(1.0, cfg.work_max_side_px / max(h, w))
     work = sheet_candidates.shrink(image_bgr, scale, half)
@@ -299,34 +298,34 @@ def detect_sheets(image_bgr: npt.NDArray[np.uint8], cfg: SheetConfig,
     cands = sheet_candidates.Candidates(work, cfg)
     small: list[Array] = []
     unfound = _accept_quads(image_bgr, [lines.full_px(q, scale) for q in cands.quads], band,
-                            cfg, K, found, dist, small, history)
+                            cfg, K, found, dist, small, aspects)
     if not found:  # the colour-edge masks only when the whiteness masks show no sheet
         unfound += _accept_quads(image_bgr, [lines.full_px(q, scale)
                                              for q in cands.edge_quads()], band, cfg, K, found,
-                                 dist, small, history)
+                                 dist, small, aspects)
     if not found and cfg.line_candidates:
         more = sheet_candidates.colour_quads(work, cands.regions, cfg) + \
             sheet_candidates.detached_quads(work, cfg) + sheet_candidates.chroma_quads(work, cfg)
         _accept_quads(image_bgr, [lines.full_px(q, scale) for q in more], band, cfg, K, found,
-                      dist, history=history)
+                      dist, history=aspects)
     for closed in (False, True):
         if found or not cfg.line_candidates or (closed and cfg.content_close_px <= 0):
             break
         line_quads = _line_candidates(image_bgr, cfg, closed)
         if line_quads:  # (refined on the image as it is)
             _accept_quads(image_bgr, [q for q, _ in line_quads], line_quads[0][1], cfg, K, found,
-                          dist, history=history)
+                          dist, history=aspects)
     if not found and cfg.blur_band_frac > 0.0:
-        _accept_blurred(image_bgr, unfound, band, cfg, K, found, dist, history)
+        _accept_blurred(image_bgr, unfound, band, cfg, K, found, dist, aspects)
     path = None
     if not found:
         hidden = [r for r in cands.white_regions if not _whole_small(r[0], small, scale)]
         path = _accept_hidden(image_bgr, hidden, scale, band, cfg, K, found, dist, cands,
                               [r for r in cands.notched_regions
                                if not _whole_small(r[0], small, scale)],
-                              None if video is None else video.hidden_path)
-    if video is not None:
-        video.hidden_path = path
+                              None if history is None else history.hidden_path)
+    if history is not None:
+        history.hidden_path = path
     found.sort(key=lambda f: -f[0])
     return [_detection(f, sheet_checks.best_model(f[1], image_bgr.shape, cfg, K)) for f in found]
 
