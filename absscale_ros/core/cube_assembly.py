@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from absscale_ros.core import cube_geometry, lines, targets
+from absscale_ros.core import cube_fill, cube_geometry, lines, targets
 
 if TYPE_CHECKING:
     from absscale_ros.core.detect_cube import Face
@@ -147,7 +147,8 @@ def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks:
                    shape: tuple[int, ...], shape_tol_frac: float, loose_ramp_px: float = 0.0,
                    carry_widen: float = 0.0,
                    outline: list[float | None] | None = None,
-                   best_outline: OutlineFit | None = None) -> targets.TargetDetection | None:
+                   best_outline: OutlineFit | None = None,
+                   fill: cube_fill.FillFn | None = None) -> targets.TargetDetection | None:
     """
     Assemble vertices (least-squares points of meeting edges), ids and edges of a cube.
 
@@ -160,7 +161,8 @@ def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks:
     ``_completed_strips``). Appends to ``outline``
     the area px of the posed cube's outline within the image (``posed_area``) of a detection.
     A strip's ends follow the cube's edges where the believed pose puts them
-    (``cube_geometry.complete_strip``), unless ``best_outline`` prefers it as measured.
+    (``cube_geometry.complete_strip``), unless ``best_outline`` prefers it as measured. A face
+    the pose shows of a colour no face found has is outlined by ``fill`` (``cube_fill``).
     """
     # (nor the two corners where the image border cuts a face: the border's, not the cube's,
     # nor a corner beyond it)
@@ -219,6 +221,9 @@ def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks:
     polygons = tuple((f.colour, _strip_outline(f, proj, best_outline) if f.thin else
                       f.corners_px) for f in faces if not f.seen) + \
         tuple((f.colour, p) for f in faces for p in f.seen)
+    if fill is not None and proj is not None:
+        polygons += tuple((colour, p) for colour, face in cube_fill.missing_faces(
+            proj[0], list(polygons)) for p in [fill(colour, face)] if p is not None)
     return targets.TargetDetection(
         target_type='cube', name='cube', vertices_px=vertices, vertex_ids=ids,
         edges=np.array(sorted(edges), dtype=np.int64).reshape(-1, 2), polygons=polygons,

@@ -23,9 +23,9 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from absscale_ros.core import (cube_assembly, cube_border, cube_geometry, cube_occluder,
-                               cube_prune, cube_split, cube_strips, cube_tip, lines, sides,
-                               targets)
+from absscale_ros.core import (cube_assembly, cube_border, cube_fill, cube_geometry,
+                               cube_occluder, cube_prune, cube_split, cube_strips, cube_tip,
+                               lines, sides, targets)
 
 Array = npt.NDArray[np.float64]
 # The blur retry (``_smeared``): a face must ramp over this share of the band, and alike on
@@ -112,6 +112,9 @@ class CubeConfig:
         at most this fraction of the two sides leaving it is a face with one corner seen,
         rounded by the mask, when its two sides meet there (``cube_tip``; they may ramp over
         ``cut_loose_ramp_px`` at most; 0: never).
+    :param fill_min_frac: a face the believed pose shows, of a colour no face found has, is
+        reported as the largest region of its colour inside the posed face when that covers
+        at least this fraction of it (``cube_fill``; an outline only, no vertex; 0: never).
     :param small_cube_frac: a cube the sharp pass poses whose area is under this fraction of
         the paper's smallest (``min_area_frac``) is the cube in view, too far away, for
         ``cube_track`` to follow (0: never). Under the paper's area at all, the frame's
@@ -162,6 +165,7 @@ class CubeConfig:
     occluder_join_aspect: float = 1.5
     cut_loose_ramp_px: float = 5.0
     tip_max_frac: float = 0.2
+    fill_min_frac: float = 0.5
     small_cube_frac: float = 0.8
     track_full_every: int = 10
     track_margin_frac: float = 0.5
@@ -191,6 +195,8 @@ class CubeConfig:
                              'in (0, 1] and occluder_max_tilt_deg in [0, 90)')
         if self.cut_loose_ramp_px < 0.0 or not 0.0 <= self.tip_max_frac < 1.0:
             raise ValueError('need cut_loose_ramp_px >= 0 and tip_max_frac in [0, 1)')
+        if not 0.0 <= self.fill_min_frac <= 1.0:
+            raise ValueError(f'fill_min_frac must be in [0, 1], got {self.fill_min_frac}')
         if self.occluder_join_frac < 0.0 or self.occluder_join_aspect <= 0.0:
             raise ValueError('need occluder_join_frac >= 0 and occluder_join_aspect > 0')
         if not 0.0 <= self.small_cube_frac <= 1.0:  # over 1: cubes the paper keeps dropped
@@ -837,7 +843,10 @@ def _cubes(image_bgr: npt.NDArray[np.uint8], faces: list[Face], cfg: CubeConfig,
             Ks, image_bgr.shape, cfg.shape_tol_frac, cfg.cut_loose_ramp_px,
             cfg.strip_carry_widen, outline,
             lambda colour, outlines: cube_strips.best_outline(image_bgr, colour, outlines,
-                                                              _masks_of(cfg)))
+                                                              _masks_of(cfg)),
+            None if cfg.fill_min_frac <= 0.0 else
+            lambda colour, face: cube_fill.colour_outline(image_bgr, colour, face,
+                                                          _masks_of(cfg), cfg.fill_min_frac))
         if det is None:
             continue
         if outline[0] is not None and area > (1.0 + cfg.outline_excess_frac) * outline[0]:

@@ -467,7 +467,8 @@ def test_cube_with_one_face_seen_edge_on(yaw, pitch, offset):
     assert thin[0] in {c for c, _ in d.polygons} and len(d.vertices_px) == 6
     bit = targets.COLOUR_BITS[thin[0]]  # the strip's colour names the corners it shares
     assert sum(bool(targets.colour_mask(i) & bit) for i in d.vertex_ids) >= 2
-    off = detect_cube.CubeConfig(strip_max_px=0.0)
+    # (the pose would show it too: ``cube_fill`` off as well)
+    off = detect_cube.CubeConfig(strip_max_px=0.0, fill_min_frac=0.0)
     assert all(thin[0] not in {c for c, _ in x.polygons}
                for x in detect_cube.detect_cubes(img, off))
 
