@@ -1,9 +1,9 @@
 """
 Which landmarks of a map are well triangulated: enough views, a wide enough angle between
-them, a small reprojection error in every view and (``max_sigma_rel``) a small estimated
-position uncertainty. Only these are published, so that lengths measured between published
-points are trustworthy (the paper's Table 3); the map itself keeps the rest (they still help
-register the next keyframes).
+them, a small reprojection error in every view, (``max_sigma_rel``) a small estimated
+position uncertainty and (``max_plane_rel``) a place on the surface its neighbours lie on. Only
+these are published, so that lengths measured between published points are trustworthy (the
+paper's Table 3); the map itself keeps the rest (they still help register the next keyframes).
 
 The uncertainty is a surveyor's: the standard deviation along the worst axis of the point's
 error ellipsoid, from its viewing geometry (the triangulation's Jacobians at the map's poses)
@@ -38,10 +38,18 @@ class CloudConfig:
     # ``min_noise_px``.
     max_sigma_rel: float = 0.0
     min_noise_px: float = 0.5
+    # Largest distance from the plane through the landmark's ``plane_neighbours`` nearest
+    # landmarks (those seen ``min_observations`` times) over its mean viewing distance (0: off).
+    # A feature whose observations slide along its track (an edge, a low-contrast blob, a
+    # junction of two surfaces) is triangulated off the surface its neighbours lie on, while
+    # its residuals stay small.
+    max_plane_rel: float = 0.0
+    plane_neighbours: int = 16
 
     def __post_init__(self) -> None:
         if self.min_observations < 2 or self.min_angle_deg < 0.0 or self.max_reproj_px <= 0.0 \
-                or self.max_sigma_rel < 0.0 or self.min_noise_px <= 0.0:
+                or self.max_sigma_rel < 0.0 or self.min_noise_px <= 0.0 or \
+                self.max_plane_rel < 0.0 or self.plane_neighbours < 3:
             raise ValueError(f'bad cloud config {self}')
 
 
@@ -77,7 +85,34 @@ def well_triangulated(m: sfm_map.SfmMap, K: FloatArray, cfg: CloudConfig) -> lis
         sub_starts = np.concatenate([[0], np.cumsum(sub)[:-1]])
         ok[ok] = sigma(T[rows], p_cam[rows], err[rows], K, sub, sub_starts,
                        cfg.min_noise_px) <= cfg.max_sigma_rel * scene
+    if cfg.max_plane_rel > 0.0 and ok.any():
+        points = pts[starts]
+        dist = np.add.reduceat(np.linalg.norm(pts - T[:, :3, 3], axis=1), starts) / counts
+        rows = np.flatnonzero(ok)
+        ok[rows] = plane_distance(points, rows, cfg.plane_neighbours) <= \
+            cfg.max_plane_rel * dist[rows]
     return list(compress(ids, ok.tolist()))
+
+
+def plane_distance(points: FloatArray, rows: npt.NDArray[np.int64], neighbours: int
+                   ) -> FloatArray:
+    """
+    (len(rows),) distance of each of ``points[rows]`` from the least-squares plane through its
+    ``neighbours`` nearest other points of ``points`` (N, 3).
+    """
+    from scipy.spatial import cKDTree
+    k = min(neighbours, len(points) - 1)
+    if k < 3:
+        return np.zeros(len(rows))
+    _, idx = cKDTree(points).query(points[rows], k + 1)
+    # Each point finds itself (among its nearest): move it last and leave it out.
+    idx = np.take_along_axis(idx, np.argsort(idx == rows[:, None], axis=1, kind='stable'),
+                             axis=1)[:, :k]
+    nb = points[idx]
+    centre = nb.mean(axis=1)
+    nb = nb - centre[:, None]
+    normal = np.linalg.eigh(np.einsum('nki,nkj->nij', nb, nb))[1][:, :, 0]
+    return np.abs(np.sum((points[rows] - centre) * normal, axis=1))
 
 
 def sigma(T: FloatArray, p_cam: FloatArray, err: FloatArray, K: FloatArray,
