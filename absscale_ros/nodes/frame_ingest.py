@@ -22,7 +22,7 @@ from typing import Any
 
 from absscale_ros import conversions
 from absscale_ros.core import calibration, errors, ingest, pairing
-from absscale_ros.nodes import common
+from absscale_ros.nodes import common, in_process
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
@@ -48,7 +48,8 @@ class FrameIngestNode(Node):
         self.decoded = self.dropped = self.reinit = 0
         self._last_problem = ''
         qos = common.SENSOR if p['qos'] == 'sensor_data' else common.RELIABLE
-        self._frames_pub = self.create_publisher(Image, '/absscale/frames', common.RELIABLE)
+        # The detector and the selector beside it take a frame as it is (``in_process``).
+        self._frames_pub = in_process.Publisher(self, Image, '/absscale/frames', common.RELIABLE)
         self._info_pub = self.create_publisher(CameraInfo, '/absscale/camera_info',
                                                common.RELIABLE)
         self._diag = common.DiagnosticsPublisher(self, 'ingest')

@@ -25,7 +25,7 @@ from typing import Any
 
 from absscale_ros import conversions
 from absscale_ros.core import detect, errors, keyframe_geometry, keyframes, pairing
-from absscale_ros.nodes import common
+from absscale_ros.nodes import common, in_process
 from geometry_msgs.msg import TransformStamped
 import numpy as np
 from rclpy.node import Node
@@ -68,8 +68,8 @@ class KeyframeSelectorNode(Node):
         self._ack = common.StepAck(self)
         self.create_subscription(CameraInfo, '/absscale/camera_info', self._on_info,
                                  common.RELIABLE)
-        self._frames_sub = self.create_subscription(Image, '/absscale/frames', self._on_frame,
-                                                    in_qos)
+        self._frames_sub = in_process.Subscription(self, Image, '/absscale/frames',
+                                                   self._on_frame, in_qos)
         self._vert_sub = (self.create_subscription(PointCloud2, '/absscale/vertices',
                                                    self._on_vertices, in_qos)
                           if self._use_vertices else None)

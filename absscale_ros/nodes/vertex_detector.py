@@ -37,7 +37,7 @@ from typing import Any
 from absscale_ros import conversions
 from absscale_ros.core import (cube_track, detect, detect_cube, detect_sheet, errors,
                                pairing, sheet_track)
-from absscale_ros.nodes import common
+from absscale_ros.nodes import common, in_process
 import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
@@ -80,8 +80,8 @@ class VertexDetectorNode(Node):
         self._dist: np.ndarray | None = None  # OpenCV-order coefficients (not fisheye)
         self._info_sub = self.create_subscription(CameraInfo, '/absscale/camera_info',
                                                   self._on_info, in_qos)
-        self._frames_sub = self.create_subscription(Image, '/absscale/frames', self._on_frame,
-                                                    in_qos)
+        self._frames_sub = in_process.Subscription(self, Image, '/absscale/frames',
+                                                   self._on_frame, in_qos)
         if self._requested is not None:
             self.create_subscription(Header, common.DETECT_REQUESTS_TOPIC, self._on_request,
                                      common.RELIABLE)
