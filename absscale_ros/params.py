@@ -12,6 +12,10 @@ from typing import Any
 from absscale_ros.core.errors import AbsScaleError
 import yaml
 
+# libyaml's safe loader where PyYAML has it: 8 against 80 ms a config, read by every process of
+# a run as it starts.
+SAFE_LOADER = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)
+
 CONFIG_NAMES = ('indoor_paper', 'outdoor_cube', 'auto')
 
 
@@ -61,7 +65,7 @@ def dds_environment() -> dict[str, str]:
 def load_yaml(path: Path) -> dict[str, dict[str, Any]]:
     """Return node name -> parameters; ``/**`` parameters merged under each node's own."""
     try:
-        data = yaml.safe_load(path.read_text()) or {}
+        data = yaml.load(path.read_text(), Loader=SAFE_LOADER) or {}
     except yaml.YAMLError as err:
         raise AbsScaleError(f'{path}: not valid YAML: {err}') from err
     if not isinstance(data, dict):

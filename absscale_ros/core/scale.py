@@ -13,7 +13,6 @@ from itertools import permutations
 
 import numpy as np
 import numpy.typing as npt
-from scipy import special
 
 from absscale_ros.core import aliasing
 from absscale_ros.core.errors import DegenerateGeometryError, NotObservableError
@@ -368,7 +367,9 @@ def estimate(objects: list[ObjectVertices], cfg: ScaleConfig,
     n_vertices = sum(int(round((1 + np.sqrt(1 + 8 * len(m))) / 2)) for m in measured)
     sigma *= np.sqrt(len(x) / max(1, n_vertices - 1))
     # scipy.special, not scipy.stats: the same quantiles without stats' ~0.9 s import in the
-    # middle of a run (special is loaded already with scipy.spatial).
+    # middle of a run; imported here, not with the module, as the run's start (its processes
+    # all importing at once) waited for its ~0.5 s.
+    from scipy import special
     t_crit = float(special.stdtrit(max(1, n_vertices - 1), 0.5 + cfg.confidence / 2))
     # The drift term is a model, not a sample: it widens sigma but takes no t-correction.
     local = sigma

@@ -9,7 +9,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-from scipy.spatial.transform import Rotation
 
 from absscale_ros.core import landmark_quality, sfm, sfm_map
 from absscale_ros.core import vertex_matching as vm
@@ -106,6 +105,7 @@ def path(m: sfm_map.SfmMap) -> tuple[npt.NDArray[np.int64], FloatArray]:
     stamps = np.array([k.stamp_ns for k in kfs], np.int64)
     if not kfs:
         return stamps, np.zeros((0, 7))
+    from scipy.spatial.transform import Rotation  # here: see local_map.search
     T = np.array([k.T_world_cam for k in kfs])
     quat_xyzw = Rotation.from_matrix(T[:, :3, :3]).as_quat()  # scipy's order is xyzw
     return stamps, np.hstack([T[:, :3, 3], quat_xyzw])
