@@ -145,9 +145,9 @@ class DenseFusion:
         # scale is first claimed) is spread over the following updates.
         self._budget, self.backlog, self._poses = self.cfg.max_new_maps, False, poses
         self._sweep_budget, self._facade_budget = 1, 1
-        outcome = [1.0] * len(stamps)
+        outcome, sweep_only = [1.0] * len(stamps), [False] * len(stamps)
         for i in reversed(range(len(stamps))):
-            outcome[i] = self._refresh_depth(stamps, i)
+            outcome[i], sweep_only[i] = self._refresh_depth(stamps, i)
         for i in reversed(range(len(stamps))):
             if self._refresh_facade(stamps, i) == _NEW:
                 # its far points vote for the earlier neighbours' far points (which are fused
@@ -155,11 +155,13 @@ class DenseFusion:
                 revote = self.cfg.facade_revote
                 for j in range(max(0, i - self.cfg.neighbours), i + 1):
                     if j == i or revote and FACADE in self._frames[stamps[j]].depths:
-                        outcome[j] = _NEW
+                        outcome[j], sweep_only[j] = _NEW, False
         for i, s in enumerate(stamps):
             kf = self._frames[s]
             if not kf.depths:
                 kf.cloud, kf.placed = None, None
+            elif sweep_only[i] and kf.cloud is not None and self._fill_pending(stamps, i):
+                kf.cloud, kf.placed = self._with_sweep(kf.cloud, stamps, i), None
             elif outcome[i] == _NEW or kf.cloud is None or \
                     not kf.filled and self._fill_ready(stamps, i):
                 kf.cloud, kf.placed = self._keyframe_cloud(stamps, i), None
@@ -173,18 +175,22 @@ class DenseFusion:
         """Work on the backlog with the latest poses; returns whether the cloud changed."""
         return self.backlog and self.update(self._poses)
 
-    def _refresh_depth(self, stamps: list[int], i: int) -> float:
+    def _refresh_depth(self, stamps: list[int], i: int) -> tuple[float, bool]:
         """
         Bring keyframe ``i``'s depth maps (a partner on each side, or one) up to date: return
-        ``_NEW`` if one was computed, else the factor its depths were rescaled by (1.0: none).
-        Both sides average out SGBM's sub-pixel bias, whose sign follows the direction of the
-        baseline in the image (measured: about +-0.3 % of depth).
+        ``_NEW`` if one was computed, else the factor its depths were rescaled by (1.0: none),
+        and whether its sweep was the only map computed. Both sides average out SGBM's
+        sub-pixel bias, whose sign follows the direction of the baseline in the image
+        (measured: about +-0.3 % of depth with ``stereo.mode`` 'sgbm').
         """
         results = [r for side in ((1, -1) if self.cfg.both_sides else (0,))
                    if (r := self._refresh_side(stamps, i, side)) is not None]
-        if (r := self._refresh_sweep(stamps, i)) is not None:
-            results.append(r)
-        return _NEW if _NEW in results else float(np.mean(results)) if results else 1.0
+        swept = self._refresh_sweep(stamps, i)
+        sweep_only = swept == _NEW and _NEW not in results
+        if swept is not None:
+            results.append(swept)
+        return _NEW if _NEW in results else float(np.mean(results)) if results else 1.0, \
+            sweep_only
 
     def _refresh_side(self, stamps: list[int], i: int, side: int) -> float | None:
         kf = self._frames[stamps[i]]
@@ -407,13 +413,45 @@ class DenseFusion:
     def _keyframe_cloud(self, stamps: list[int], i: int) -> Any:
         """The consistent points of keyframe ``i``, cleaned, with normals, in its camera frame."""
         kf = self._frames[stamps[i]]
+        keep_pts, keep_col = self._consistent(stamps, i, sorted(kf.depths))  # sweep after pairs
+        kf.filled = self._fill_ready(stamps, i)
+        if kf.filled:  # plain holes on a plane around them
+            pts, colours = self._filled(stamps, i, np.concatenate(keep_pts))
+            keep_pts.append(pts)
+            keep_col.append(colours)
+        return dense_cloud.clean(np.concatenate(keep_pts), np.concatenate(keep_col), self.cfg)
+
+    def _fill_pending(self, stamps: list[int], i: int) -> bool:
+        """Whether keyframe ``i``'s plain holes are still to be filled, and so its cloud is
+        still to be rebuilt whole (``_fill_ready``)."""
+        return self.fill.enabled and not self._frames[stamps[i]].filled and \
+            len(stamps) - 1 - i < self.fill.lag
+
+    def _with_sweep(self, cloud: Any, stamps: list[int], i: int) -> Any:
+        """
+        Keyframe ``i``'s cloud with the points of its new sweep added (cleaned on their own).
+
+        Its pairs' points are left as they are, without the sweep's votes and averaging: the
+        rebuild when its holes are filled (``fill.lag`` later) checks every point again, so
+        checking them now as well would only cost an update its CPU twice.
+        """
+        pts, colours = self._consistent(stamps, i, [SWEEP])
+        extra = dense_cloud.clean(np.concatenate(pts), np.concatenate(colours), self.cfg)
+        return cloud + extra if extra.has_normals() else cloud
+
+    def _consistent(self, stamps: list[int], i: int,
+                    sides: list[int]) -> tuple[list[FloatArray], list[npt.NDArray[np.uint8]]]:
+        """The points (camera frame) and colours of keyframe ``i``'s depth maps ``sides``
+        that enough other depth maps agree with, per map."""
+        kf = self._frames[stamps[i]]
         k = self.cfg.neighbours
         near = sorted(range(max(0, i - k), min(len(stamps), i + k + 1)), key=lambda j: abs(j - i))
         maps = [(m, self._frames[stamps[j]].pose, side >= SWEEP) for j in near
                 for side, m in self._frames[stamps[j]].depths.items()]
         pairs = [m for side, m in kf.depths.items() if side < SWEEP]
         keep_pts, keep_col = [], []
-        for side, own in sorted(kf.depths.items()):  # the sweep (2) after the pairs
+        for side in sides:
+            own = kf.depths[side]
             pts, colours = own.points_camera()
             world = dense_stereo.transform(pts, kf.pose[:3, :3], kf.pose[:3, 3])
             if side >= SWEEP:  # only where no pair (nor the sweep) of this keyframe has depth
@@ -450,12 +488,7 @@ class DenseFusion:
                 pts = dense_stereo.transform(world - kf.pose[:3, 3], kf.pose[:3, :3].T)
             keep_pts.append(pts[keep])
             keep_col.append(colours[keep])
-        kf.filled = self._fill_ready(stamps, i)
-        if kf.filled:  # plain holes on a plane around them
-            pts, colours = self._filled(stamps, i, np.concatenate(keep_pts))
-            keep_pts.append(pts)
-            keep_col.append(colours)
-        return dense_cloud.clean(np.concatenate(keep_pts), np.concatenate(keep_col), self.cfg)
+        return keep_pts, keep_col
 
     def _fill_ready(self, stamps: list[int], i: int) -> bool:
         """Whether keyframe ``i``'s plain holes are filled: once ``fill.lag`` later keyframes

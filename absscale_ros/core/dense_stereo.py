@@ -19,6 +19,12 @@ from absscale_ros.core.types import CameraModel
 
 FloatArray = npt.NDArray[np.float64]
 _MIN_RAY_DEG = 5.0  # rays closer to the baseline have too little parallax to be rectified
+# OpenCV's SGBM modes. 'sgbm' and '3way' aggregate costs along paths that come from the rows
+# above only, so on a surface whose disparity changes down the image (a floor, a desk) a plain
+# stretch lags behind the rows above it: too deep with the partner on the right, too near on
+# the left (the rectified image is upside down). 'hh4' adds the paths from below.
+_MODES = {'sgbm': cv2.STEREO_SGBM_MODE_SGBM, '3way': cv2.STEREO_SGBM_MODE_SGBM_3WAY,
+          'hh4': cv2.STEREO_SGBM_MODE_HH4, 'hh': cv2.STEREO_SGBM_MODE_HH}
 
 
 @dataclass(frozen=True)
@@ -44,6 +50,11 @@ class StereoConfig:
     min_texture: float = 0.0  # grey-level deviation in a block below this: no depth (0: keep)
     match_features: int = 800  # ORB features matched for the disparity range when tracking
     # fails (0: no fallback, range 0-96 px)
+    mode: str = 'sgbm'  # SGBM's cost paths (``_MODES``): 'sgbm' comes only from above
+
+    def __post_init__(self) -> None:
+        if self.mode not in _MODES:
+            raise ValueError(f'stereo mode {self.mode!r}: one of {", ".join(_MODES)}')
 
 
 @dataclass
@@ -291,7 +302,7 @@ def _sgbm(left: np.ndarray, right: np.ndarray, lo: int, num: int,
         minDisparity=lo, numDisparities=num, blockSize=b, P1=8 * b * b, P2=32 * b * b,
         disp12MaxDiff=cfg.lr_max_diff, uniquenessRatio=cfg.uniqueness,
         speckleWindowSize=cfg.speckle_window, speckleRange=cfg.speckle_range,
-        mode=cv2.STEREO_SGBM_MODE_SGBM)
+        mode=_MODES[cfg.mode])
     disp = sgbm.compute(left, right).astype(np.float32) / 16.0
     disp[disp < lo] = 0.0  # SGBM marks rejected pixels with minDisparity - 1
     return disp

@@ -50,6 +50,24 @@ def test_one_pair_depth_matches_the_scene() -> None:
     assert np.median(dist0) < 0.006 * z and np.mean(dist0 > 0.05) < 0.1
 
 
+def test_paths_from_below_too_remove_the_side_bias_of_a_pair() -> None:
+    images, cam, poses, mesh = sideways_keyframes()
+    bias, far = {}, {}
+    for mode in ('sgbm', 'hh4'):
+        cfg = dense_stereo.StereoConfig(scale=1.0, mode=mode)
+        left, right = (dense_stereo.compute_depth(images[2], images[k], cam, poses[2], poses[k],
+                                                  k, cfg) for k in (0, 4))
+        worlds = [m.points_camera()[0] @ poses[2][:3, :3].T + poses[2][:3, 3]
+                  for m in (left, right)]
+        ok, ratio = dense_fusion.agreeing(worlds[1], poses[2], left, 0.05)
+        bias[mode] = abs(float(np.median(ratio[ok])) - 1.0)  # left's depth / right's, per pixel
+        far[mode] = max(float(np.mean(mesh.distance(w) > 0.02)) for w in worlds)
+    # 'sgbm' aggregates costs from the rows above only: the partner on the left (the rectified
+    # pair upside down) and on the right read the same pixels 0.9 % of depth apart.
+    assert bias['sgbm'] > 0.005 and bias['hh4'] < 0.001
+    assert far['hh4'] < 0.05 < far['sgbm']
+
+
 def test_disparities_too_wide_to_track_are_searched_from_matched_features() -> None:
     images, cam, poses, mesh = wide_near_pair()
     errors = []

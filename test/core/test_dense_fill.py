@@ -97,6 +97,28 @@ def test_fusion_with_the_fill_covers_more_of_the_wall_as_accurately() -> None:
     assert np.percentile(dist_on, 90) <= np.percentile(dist_off, 90) + 0.001 * depth
 
 
+def test_a_new_sweep_adds_its_points_until_the_fill_rebuilds_the_keyframe() -> None:
+    images, cam, poses, _ = sideways_keyframes()
+    # One partner, chosen when a keyframe comes (on this walk a second side's pair would come
+    # with the next keyframe, together with the sweep)
+    fusion = dense_fusion.DenseFusion(dense_stereo.StereoConfig(scale=1.0),
+                                      dense_fusion.FusionConfig(both_sides=False), fill=FILL)
+    held = []
+    for k, image in enumerate(images[:5]):  # one keyframe at a time, as a bag feeds them
+        fusion.add_keyframe(k, image, cam)
+        fusion.update({j: poses[j] for j in range(k + 1)})
+        while fusion.backlog:
+            fusion.catch_up()
+        if k >= 1:
+            held.append(np.asarray(fusion._frames[1].cloud.points).copy())
+    held = [np.zeros((0, 3))] + held  # held[k]: after keyframe k came
+    # Keyframe 1: its pair's points at once; its sweep (one keyframe later) adds its own points
+    # and leaves those as they were; once its fill is due (3 later) every point is checked again.
+    assert len(held[2]) > len(held[1]) and np.array_equal(held[2][:len(held[1])], held[1])
+    assert np.array_equal(held[3], held[2])
+    assert not np.array_equal(held[4][:len(held[1])], held[1])
+
+
 @pytest.mark.parametrize('field', ['lag', 'max_planes', 'max_holes'])
 def test_a_fill_config_that_cannot_fill_is_refused(field: str) -> None:
     """A negative lag, or no plane or hole to try, is a typo in a config, not a quiet no-op."""
