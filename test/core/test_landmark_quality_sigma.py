@@ -62,6 +62,25 @@ def mean_distance(eng: sfm.IncrementalSfm, i: int) -> float:
                           for k in lm.obs_px]))
 
 
+def assert_gate_matches(eng: sfm.IncrementalSfm, base: list[int], rel: np.ndarray, field: str,
+                        extra: dict[str, float], tol: float) -> None:
+    """The gate ``field`` at the median of ``rel`` (each base landmark's exact relative figure)
+    keeps the landmarks whose figure is under it, but those within ``tol`` of the limit; looser
+    limits keep more, and 0 (off) keeps the base set."""
+    m = eng.current.map
+    limit = float(np.median(rel))  # half of them pass
+    cfg = replace(BASE, **{field: limit}, **extra)
+    kept = set(landmark_quality.well_triangulated(m, eng.K, cfg))
+    want = {i for i, r in zip(base, rel) if r <= limit}
+    borderline = int(np.sum(np.abs(rel / limit - 1.0) < tol))
+    assert 0.3 * len(base) < len(want) < 0.7 * len(base)
+    assert kept <= set(base) and len(kept ^ want) <= borderline
+    counts = [len(landmark_quality.well_triangulated(m, eng.K, replace(cfg, **{field: s})))
+              for s in (0.5 * limit, limit, 2.0 * limit)]
+    assert counts[0] < counts[1] < counts[2] <= len(base)
+    assert landmark_quality.well_triangulated(m, eng.K, replace(cfg, **{field: 0.0})) == base
+
+
 def test_gate_matches_an_exact_check(run: tuple[sfm.IncrementalSfm, sfm_scenes.Sequence]
                                      ) -> None:
     eng = run[0]
@@ -70,18 +89,7 @@ def test_gate_matches_an_exact_check(run: tuple[sfm.IncrementalSfm, sfm_scenes.S
     scene = np.median([mean_distance(eng, i) for i, lm in m.landmarks.items()
                        if len(lm.obs_px) >= BASE.min_observations])
     rel = exact_sigmas(eng, base, 0.35) / scene
-    limit = float(np.median(rel))  # half of them pass
-    cfg = replace(BASE, max_sigma_rel=limit, min_noise_px=0.35)
-    kept = set(landmark_quality.well_triangulated(m, eng.K, cfg))
-    want = {i for i, r in zip(base, rel) if r <= limit}
-    borderline = int(np.sum(np.abs(rel / limit - 1.0) < 1e-4))
-    assert 0.3 * len(base) < len(want) < 0.7 * len(base)
-    assert kept <= set(base) and len(kept ^ want) <= borderline
-    # Looser limits keep more; off keeps the base set.
-    counts = [len(landmark_quality.well_triangulated(m, eng.K, replace(cfg, max_sigma_rel=s)))
-              for s in (0.5 * limit, limit, 2.0 * limit)]
-    assert counts[0] < counts[1] < counts[2] <= len(base)
-    assert landmark_quality.well_triangulated(m, eng.K, replace(cfg, max_sigma_rel=0.0)) == base
+    assert_gate_matches(eng, base, rel, 'max_sigma_rel', {'min_noise_px': 0.35}, 1e-4)
     with pytest.raises(ValueError):
         landmark_quality.CloudConfig(max_sigma_rel=-1.0)
 
@@ -154,17 +162,7 @@ def test_plane_gate_matches_an_exact_check(
     m = eng.current.map
     base = landmark_quality.well_triangulated(m, eng.K, BASE)
     rel = relative_plane_distances(eng, base, 16)
-    limit = float(np.median(rel))  # half of them pass
-    cfg = replace(BASE, max_plane_rel=limit, plane_neighbours=16)
-    kept = set(landmark_quality.well_triangulated(m, eng.K, cfg))
-    want = {i for i, r in zip(base, rel) if r <= limit}
-    borderline = int(np.sum(np.abs(rel / limit - 1.0) < 1e-6))
-    assert 0.3 * len(base) < len(want) < 0.7 * len(base)
-    assert kept <= set(base) and len(kept ^ want) <= borderline
-    counts = [len(landmark_quality.well_triangulated(m, eng.K, replace(cfg, max_plane_rel=s)))
-              for s in (0.5 * limit, limit, 2.0 * limit)]
-    assert counts[0] < counts[1] < counts[2] <= len(base)
-    assert landmark_quality.well_triangulated(m, eng.K, replace(cfg, max_plane_rel=0.0)) == base
+    assert_gate_matches(eng, base, rel, 'max_plane_rel', {'plane_neighbours': 16}, 1e-6)
     for bad_cfg in ({'max_plane_rel': -1.0}, {'plane_neighbours': 2}):
         with pytest.raises(ValueError):
             landmark_quality.CloudConfig(**bad_cfg)
