@@ -41,6 +41,8 @@ def missing_faces(proj: Array, reported: list[tuple[str, Array]]) -> list[tuple[
     turn = [cv2.contourArea(poly.astype(np.float32), oriented=True) for _, poly in shown]
     shown = [(p, poly) for (p, poly), a in zip(shown, turn) if a * turn[0] > 0.0]
     hulls = [cv2.convexHull(poly.astype(np.float32)) for _, poly in shown]
+    if not hulls:  # the posing face seen edge-on: no face winds either way
+        return []
     colours: dict[int, str] = {}
     for colour, outline in reported:
         found = cv2.convexHull(np.asarray(outline, np.float32))

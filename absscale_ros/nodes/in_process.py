@@ -29,13 +29,14 @@ import weakref
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile
 
-# rclpy context -> topic -> its in-process subscriptions (weakly: a run's context goes away).
-_BY_CONTEXT: 'weakref.WeakKeyDictionary[Any, dict[str, list[Subscription]]]' = \
+# rclpy context -> topic -> its in-process subscriptions, all weakly (a strong reference to a
+# subscription would keep its node and so the context key alive: every run's nodes would stay).
+_BY_CONTEXT: 'weakref.WeakKeyDictionary[Any, dict[str, list[weakref.ref[Subscription]]]]' = \
     weakref.WeakKeyDictionary()
 _REGISTRY_LOCK = threading.Lock()
 
 
-def _subscriptions(node: Node, topic: str) -> list['Subscription']:
+def _subscriptions(node: Node, topic: str) -> list['weakref.ref[Subscription]']:
     with _REGISTRY_LOCK:
         return _BY_CONTEXT.setdefault(node.context, {}).setdefault(topic, [])
 
@@ -43,7 +44,8 @@ def _subscriptions(node: Node, topic: str) -> list['Subscription']:
 class Subscription:
     """
     A node's subscription that also takes messages handed over in this process (see
-    ``Publisher``); ``callback`` runs on the node's executor either way.
+    ``Publisher``); ``callback`` runs on the node's executor either way. The node keeps it:
+    the registry holds it weakly, so a dropped one takes only DDS messages.
     """
 
     def __init__(self, node: Node, msg_type: Any, topic: str, callback: Callable[[Any], None],
@@ -55,7 +57,7 @@ class Subscription:
         self._queue: deque[Any] = deque(maxlen=keep)
         self._lock = threading.Lock()
         self._node = node
-        _subscriptions(node, self.topic_name).append(self)
+        _subscriptions(node, self.topic_name).append(weakref.ref(self))
 
     def hand(self, msg: Any) -> None:
         """Queue ``msg`` for the callback on the node's executor (from any thread)."""
@@ -63,7 +65,13 @@ class Subscription:
             self._queue.append(msg)
         executor = self._node.executor
         if executor is not None:  # one task per message: a task finds it, or an earlier one
-            executor.create_task(self._deliver)
+            try:
+                executor.create_task(self._deliver)
+            except (AttributeError, RuntimeError):
+                # a shut-down executor (the classic one has lost its guard condition): the
+                # message is dropped, as DDS would drop it for a node no longer spinning
+                with self._lock:
+                    self._queue.clear()
 
     def _deliver(self) -> None:
         while True:
@@ -88,11 +96,13 @@ class Publisher:
         self.handed = 0  # messages handed over in this process
 
     def publish(self, msg: Any) -> None:
-        local = [s for s in self._local if s.msg_type is self._msg_type]
-        if not self.through_dds and local and self.dds.get_subscription_count() <= len(local):
-            for sub in local:
-                sub.hand(msg)
-            self.handed += 1
-            return
-        self.through_dds = True
+        local = [s for ref in self._local
+                 if (s := ref()) is not None and s.msg_type is self._msg_type]
+        if not self.through_dds and local:
+            if self.dds.get_subscription_count() <= len(local):
+                for sub in local:
+                    sub.hand(msg)
+                self.handed += 1
+                return
+            self.through_dds = True  # a subscriber elsewhere matched: DDS only from now on
         self.dds.publish(msg)

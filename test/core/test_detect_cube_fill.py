@@ -71,3 +71,9 @@ def test_missing_faces_names_the_third_colour_from_two():
             ] == ['purple']
     assert cube_fill.missing_faces(proj, [('red', corners)]) == []
     assert cube_fill.missing_faces(proj, [('red', corners), ('red', a)]) == []
+
+
+def test_a_cube_posed_edge_on_shows_no_face_to_fill() -> None:
+    # Every corner on one image line: no face has an area, so none is shown (no crash).
+    proj = np.column_stack([np.linspace(100.0, 300.0, 8), np.full(8, 200.0)])
+    assert cube_fill.missing_faces(proj, [('red', proj[:4])]) == []

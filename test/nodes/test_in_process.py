@@ -29,8 +29,9 @@ def test_frames_are_handed_to_the_subscriptions_beside_the_publisher(context,
     source, a, b = (Node(name, context=context) for name in ('source', 'a', 'b'))
     got_a: list[Image] = []
     got_b: list[Image] = []
-    in_process.Subscription(a, Image, TOPIC, got_a.append, common.RELIABLE)
-    in_process.Subscription(b, Image, TOPIC, got_b.append, common.RELIABLE)
+    # Kept, as the nodes keep theirs: the registry holds subscriptions weakly.
+    subs = [in_process.Subscription(a, Image, TOPIC, got_a.append, common.RELIABLE),
+            in_process.Subscription(b, Image, TOPIC, got_b.append, common.RELIABLE)]
     pub = in_process.Publisher(source, Image, TOPIC, common.RELIABLE)
     executor = common.single_threaded_executor(context) if events \
         else SingleThreadedExecutor(context=context)
@@ -46,13 +47,14 @@ def test_frames_are_handed_to_the_subscriptions_beside_the_publisher(context,
     assert [id(m) for m in got_a] == [id(m) for m in sent]  # the objects themselves, in order
     assert [id(m) for m in got_b] == [id(m) for m in sent]
     executor.shutdown()
+    del subs
 
 
 def test_a_subscriber_elsewhere_gets_every_frame_through_dds_and_none_twice(context) -> None:
     source, a = Node('source', context=context), Node('a', context=context)
     got_a: list[Image] = []
     got_other: list[Image] = []
-    in_process.Subscription(a, Image, TOPIC, got_a.append, common.RELIABLE)
+    sub = in_process.Subscription(a, Image, TOPIC, got_a.append, common.RELIABLE)  # noqa: F841
     pub = in_process.Publisher(source, Image, TOPIC, common.RELIABLE)
     # Another process's subscriber: another context, another DDS participant.
     other_context = rclpy.Context()
@@ -88,7 +90,7 @@ def test_a_subscription_that_keeps_the_last_n_drops_the_oldest(context) -> None:
     got: list[Image] = []
     keep_3 = QoSProfile(depth=3, reliability=ReliabilityPolicy.RELIABLE,
                         history=HistoryPolicy.KEEP_LAST)
-    in_process.Subscription(a, Image, TOPIC, got.append, keep_3)
+    sub = in_process.Subscription(a, Image, TOPIC, got.append, keep_3)  # noqa: F841
     pub = in_process.Publisher(source, Image, TOPIC, common.RELIABLE)
     executor = common.single_threaded_executor(context)
     for node in (source, a):
