@@ -185,12 +185,13 @@ class DenseFusion:
         """
         results = [r for side in ((1, -1) if self.cfg.both_sides else (0,))
                    if (r := self._refresh_side(stamps, i, side)) is not None]
-        had_sweep = SWEEP in self._frames[stamps[i]].depths
+        depths = self._frames[stamps[i]].depths
+        had_sweep = SWEEP in depths
         swept = self._refresh_sweep(stamps, i)
         # Only a first sweep beside unchanged pair maps may be added to the cloud as it is: a
         # rescaled pair, a re-sweep (old points still in the cloud) or a removed sweep rebuild.
-        sweep_only = swept == _NEW and not had_sweep and \
-            SWEEP in self._frames[stamps[i]].depths and all(r == 1.0 for r in results)
+        sweep_only = swept == _NEW and not had_sweep and SWEEP in depths and \
+            all(r == 1.0 for r in results)
         if swept is not None:
             results.append(swept)
         return _NEW if _NEW in results else float(np.mean(results)) if results else 1.0, \

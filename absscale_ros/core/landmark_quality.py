@@ -77,19 +77,19 @@ def well_triangulated(m: sfm_map.SfmMap, K: FloatArray, cfg: CloudConfig) -> lis
     err[~(p_cam[:, 2] > 0.0)] = np.inf
     ok = (np.maximum.reduceat(err, starts) <= cfg.max_reproj_px) & \
         (_widest_angles_deg(pts, T, counts, starts) >= cfg.min_angle_deg)
+    if (cfg.max_sigma_rel > 0.0 or cfg.max_plane_rel > 0.0) and ok.any():
+        # each landmark's mean viewing distance, which both gates are relative to
+        dist = np.add.reduceat(np.linalg.norm(pts - T[:, :3, 3], axis=1), starts) / counts
     if cfg.max_sigma_rel > 0.0 and ok.any():
-        scene = float(np.median(np.add.reduceat(np.linalg.norm(pts - T[:, :3, 3], axis=1),
-                                                starts) / counts))
+        scene = float(np.median(dist))
         rows = np.repeat(ok, counts)  # only the landmarks still in: the Jacobians cost most
         sub = counts[ok]
         sub_starts = np.concatenate([[0], np.cumsum(sub)[:-1]])
         ok[ok] = sigma(T[rows], p_cam[rows], err[rows], K, sub, sub_starts,
                        cfg.min_noise_px) <= cfg.max_sigma_rel * scene
     if cfg.max_plane_rel > 0.0 and ok.any():
-        points = pts[starts]
-        dist = np.add.reduceat(np.linalg.norm(pts - T[:, :3, 3], axis=1), starts) / counts
         rows = np.flatnonzero(ok)
-        ok[rows] = plane_distance(points, rows, cfg.plane_neighbours) <= \
+        ok[rows] = plane_distance(pts[starts], rows, cfg.plane_neighbours) <= \
             cfg.max_plane_rel * dist[rows]
     return list(compress(ids, ok.tolist()))
 
