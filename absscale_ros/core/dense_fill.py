@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from absscale_ros.core import dense_stereo
+from absscale_ros.core import dense_stereo, lines
 
 FloatArray = npt.NDArray[np.float64]
 Mask = npt.NDArray[np.bool_]
@@ -88,17 +88,18 @@ def scene_planes(points: FloatArray, cfg: FillConfig,
     left = points
     while len(planes) < cfg.max_planes and len(left) >= 3:
         tol = cfg.plane_rel * np.abs(left[:, 2])
-        best = np.zeros(len(left), bool)
+        best, best_count = np.zeros(len(left), bool), 0
+        columns = np.ascontiguousarray(left.T)  # x, y, z rows: each trial reads them whole
         for a, b, c in rng.integers(0, len(left), (cfg.plane_trials, 3)):
-            n = np.cross(left[b] - left[a], left[c] - left[a])
+            n = lines.cross3(left[b] - left[a], left[c] - left[a])
             norm = np.linalg.norm(n)
             if norm < 1e-12:
                 continue
-            inside = np.abs(dense_stereo.transform(left - left[a], n[None, :] / norm)[:, 0]) \
-                <= tol
-            if inside.sum() > best.sum():
-                best = inside
-        if best.sum() < max(3, cfg.plane_share * len(points)):
+            inside = np.abs(dense_stereo.plane_offsets(columns, left[a], n / norm)) <= tol
+            count = int(np.count_nonzero(inside))
+            if count > best_count:
+                best, best_count = inside, count
+        if best_count < max(3, cfg.plane_share * len(points)):
             break
         n, d = _refit(left, best, cfg.plane_refit * tol)
         planes.append((n, d))

@@ -573,8 +573,8 @@ def _agreeing_index(world: FloatArray, T_world_cam: FloatArray, depth: dense_ste
                     tolerance_rel: float) -> tuple[npt.NDArray[np.intp], FloatArray]:
     """``agreeing`` as the indices of the agreeing points and their ratios (the fusion's
     inner loop: only the points in front of the other camera are carried on)."""
-    R = depth.R_rect @ T_world_cam[:3, :3].T
-    p = dense_stereo.transform(world - T_world_cam[:3, 3], depth.K_rect @ R)  # u z, v z, z
+    p = dense_stereo.project(world, depth.K_rect @ depth.R_rect @ T_world_cam[:3, :3].T,
+                             T_world_cam[:3, 3])  # u z, v z, z
     idx = np.flatnonzero(p[:, 2] > 1e-6)
     p = p[idx]
     z = p[:, 2]

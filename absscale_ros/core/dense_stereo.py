@@ -97,6 +97,26 @@ def transform(points: FloatArray, A: FloatArray, b: FloatArray | None = None) ->
     return out
 
 
+def project(points: FloatArray, A: FloatArray, origin: FloatArray) -> FloatArray:
+    """
+    ``(points - origin) @ A.T`` for (N, 3) points as one OpenCV pass (``cv2.transform``, on
+    the calling thread when OpenCV's threads are off): the consistency check's inner loop,
+    ~15 times faster than ``transform`` on the shifted copy (equal to ~1e-15 relative).
+    """
+    M = np.empty((3, 4))
+    M[:, :3], M[:, 3] = A, -(A @ origin)
+    return cv2.transform(np.ascontiguousarray(points).reshape(-1, 1, 3), M).reshape(-1, 3)
+
+
+def plane_offsets(columns: FloatArray, origin: FloatArray, normal: FloatArray) -> FloatArray:
+    """``(points - origin) . normal`` for points given as (3, N) rows of x, y and z, in the
+    order ``transform`` sums them (the same bits, without an (N, 3) copy)."""
+    out = (columns[0] - origin[0]) * normal[0]
+    out += (columns[1] - origin[1]) * normal[1]
+    out += (columns[2] - origin[2]) * normal[2]
+    return out
+
+
 def working_image(image: np.ndarray, camera: CameraModel,
                   cfg: StereoConfig) -> tuple[np.ndarray, CameraModel]:
     """The keyframe at the working scale, and its camera."""

@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from absscale_ros.core import dense_stereo
+from absscale_ros.core import dense_stereo, lines
 from absscale_ros.core.types import CameraModel
 
 FloatArray = npt.NDArray[np.float64]
@@ -185,16 +185,18 @@ def dominant_plane(points: FloatArray, cfg: SweepConfig,
         return None
     rng = np.random.default_rng(seed)
     tolerance = cfg.plane_tolerance * np.median(np.linalg.norm(points, axis=1))
-    best, best_in = None, np.zeros(len(points), bool)
+    best, best_in, best_count = None, np.zeros(len(points), bool), 0
+    columns = np.ascontiguousarray(points.T)
     for a, b, c in rng.integers(0, len(points), (cfg.plane_trials, 3)):
-        n = np.cross(points[b] - points[a], points[c] - points[a])
+        n = lines.cross3(points[b] - points[a], points[c] - points[a])
         if np.linalg.norm(n) < 1e-12:
             continue
-        along = dense_stereo.transform(points - points[a], n[None, :] / np.linalg.norm(n))
-        inside = np.abs(along[:, 0]) <= tolerance
-        if inside.sum() > best_in.sum():
-            best, best_in = n, inside
-    if best is None or best_in.sum() < cfg.plane_min_share * len(points):
+        inside = np.abs(dense_stereo.plane_offsets(columns, points[a], n / np.linalg.norm(n))) \
+            <= tolerance
+        count = int(np.count_nonzero(inside))
+        if count > best_count:
+            best, best_in, best_count = n, inside, count
+    if best is None or best_count < cfg.plane_min_share * len(points):
         return None
     inliers = points[best_in]
     centre = inliers.mean(0)  # least-squares refit on the inliers
