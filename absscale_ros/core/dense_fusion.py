@@ -477,7 +477,11 @@ class DenseFusion:
                     continue
                 if mean:
                     idx, ratio = _agreeing_index(world, pose, m, rel)
-                    total[idx] += pose[:3, 3] + (world[idx] - pose[:3, 3]) * ratio[:, None]
+                    along = world[idx]  # its estimate: along its ray, scaled by the ratio
+                    along -= pose[:3, 3]
+                    along *= ratio[:, None]
+                    along += pose[:3, 3]
+                    total[idx] += along
                     weight[idx] += 1.0
                 else:
                     short = np.flatnonzero(votes < self.cfg.min_consistent)
@@ -572,17 +576,16 @@ def agreeing(world: FloatArray, T_world_cam: FloatArray, depth: dense_stereo.Dep
 def _agreeing_index(world: FloatArray, T_world_cam: FloatArray, depth: dense_stereo.DepthMap,
                     tolerance_rel: float) -> tuple[npt.NDArray[np.intp], FloatArray]:
     """``agreeing`` as the indices of the agreeing points and their ratios (the fusion's
-    inner loop: only the points in front of the other camera are carried on)."""
+    inner loop: each step runs once over all points, no (N, 3) gathers)."""
     p = dense_stereo.project(world, depth.K_rect @ depth.R_rect @ T_world_cam[:3, :3].T,
                              T_world_cam[:3, 3])  # u z, v z, z
-    idx = np.flatnonzero(p[:, 2] > 1e-6)
-    p = p[idx]
     z = p[:, 2]
     h, w = depth.depth.shape
-    u, v = np.rint(p[:, 0] / z), np.rint(p[:, 1] / z)
-    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    idx, z = idx[inside], z[inside]
-    seen = depth.depth[v[inside].astype(np.intp), u[inside].astype(np.intp)]
+    with np.errstate(divide='ignore', invalid='ignore'):  # behind the camera: left out below
+        u, v = np.rint(p[:, 0] / z), np.rint(p[:, 1] / z)
+    idx = np.flatnonzero((z > 1e-6) & (u >= 0) & (u < w) & (v >= 0) & (v < h))
+    z = z[idx]
+    seen = depth.depth.ravel()[v[idx].astype(np.intp) * w + u[idx].astype(np.intp)]
     good = (seen > 0) & (np.abs(seen - z) <= tolerance_rel * z)
     return idx[good], seen[good] / z[good]
 
