@@ -18,3 +18,9 @@ def test_the_line_names_each_depth_fifth_when_the_evaluation_gave_them() -> None
 def test_a_result_without_fifths_prints_as_before() -> None:
     line = bench_dense._line(FIGURES)
     assert 'within 5 cm; update CPU median 1.50 s (p95 2.10)' in line
+
+
+def test_the_line_gives_the_update_wall_time_beside_its_cpu() -> None:
+    line = bench_dense._line({**FIGURES, 'update_wall_s_median': 1.25,
+                              'update_wall_s_p95': 3.5})
+    assert 'update CPU median 1.50 s (p95 2.10), wall 1.25 s (p95 3.50)' in line

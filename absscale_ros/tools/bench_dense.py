@@ -6,7 +6,7 @@ aligned to the truth (a scale error counts). ``--gt-poses``: only the dense core
 keyframes the selector picks, with their true poses (stereo quality without SfM error).
 Figures (issue 9): median / p90 distance to the true surface as a fraction of the median scene
 depth, completeness within 2 cm (indoor) / 5 cm (outdoor), points against the sparse cloud,
-update time per keyframe (CPU; median).
+update time per keyframe (CPU of the whole process, and wall; median and p95).
 """
 import argparse
 import json
@@ -55,5 +55,10 @@ def _line(r: dict[str, Any]) -> str:
             f'({1000 * r["distance_median_m"]:.1f} / {1000 * r["distance_p90_m"]:.1f} mm); '
             f'completeness {100 * r["completeness"]:.1f} % of {r["surface_samples"]} samples '
             f'within {100 * r["radius_m"]:.0f} cm{_by_depth(r)}; update CPU median '
-            f'{np.nan if r["update_s_median"] is None else r["update_s_median"]:.2f} s '
-            f'(p95 {np.nan if r["update_s_p95"] is None else r["update_s_p95"]:.2f})')
+            f'{_s(r["update_s_median"])} s '
+            f'(p95 {_s(r["update_s_p95"])}), wall {_s(r.get("update_wall_s_median"))} s '
+            f'(p95 {_s(r.get("update_wall_s_p95"))})')
+
+
+def _s(seconds: float | None) -> str:
+    return f'{np.nan if seconds is None else seconds:.2f}'
