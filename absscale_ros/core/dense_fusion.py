@@ -206,13 +206,16 @@ class DenseFusion:
                 old.relative = dense_stereo.relative_pose(kf.pose,
                                                           self._frames[old.pair_stamp].pose)
                 return ratio
-        depth_guess = self._depth_guess(stamps, i)
+        depth_guess = None  # only once a keyframe lies on this side (a walk to one side
+        # leaves the other side empty, and each update asks again)
         n = self.stereo.candidates
         scored = []
         for j in range(max(0, i - n), min(len(stamps), i + n + 1)):
             other = self._frames[stamps[j]].pose
             offset = kf.pose[:3, :3].T @ (other[:3, 3] - kf.pose[:3, 3])
             if j != i and side in (0, np.sign(offset[0])):
+                if depth_guess is None:
+                    depth_guess = self._depth_guess(stamps, i)
                 q = dense_stereo.pair_quality(kf.pose, other, depth_guess, self.stereo)
                 if q is not None:
                     scored.append((q, j))
@@ -458,7 +461,7 @@ class DenseFusion:
         for side in sides:
             own = kf.depths[side]
             pts, colours = own.points_camera()
-            world = dense_stereo.transform(pts, kf.pose[:3, :3], kf.pose[:3, 3])
+            world = dense_stereo.affine(pts, kf.pose[:3, :3], kf.pose[:3, 3])
             if side >= SWEEP:  # only where no pair (nor the sweep) of this keyframe has depth
                 free = np.ones(len(pts), bool)
                 for m in pairs:
@@ -494,7 +497,7 @@ class DenseFusion:
             keep = votes >= needed
             if self.cfg.average:
                 world = total / weight[:, None]
-                pts = dense_stereo.transform(world - kf.pose[:3, 3], kf.pose[:3, :3].T)
+                pts = dense_stereo.project(world, kf.pose[:3, :3].T, kf.pose[:3, 3])
             keep_pts.append(pts[keep])
             keep_col.append(colours[keep])
         return keep_pts, keep_col

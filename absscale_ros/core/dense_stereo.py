@@ -98,13 +98,19 @@ def transform(points: FloatArray, A: FloatArray, b: FloatArray | None = None) ->
 
 
 def project(points: FloatArray, A: FloatArray, origin: FloatArray) -> FloatArray:
+    """``(points - origin) @ A.T`` for (N, 3) points (``affine``)."""
+    return affine(points, A, -(A @ origin))
+
+
+def affine(points: FloatArray, A: FloatArray, b: FloatArray) -> FloatArray:
     """
-    ``(points - origin) @ A.T`` for (N, 3) points as one OpenCV pass (``cv2.transform``, on
-    the calling thread when OpenCV's threads are off): the consistency check's inner loop,
-    ~15 times faster than ``transform`` on the shifted copy (equal to ~1e-15 relative).
+    ``points @ A.T + b`` for (N, 3) points as one OpenCV pass (``cv2.transform``, on the
+    calling thread when OpenCV's threads are off): the consistency check's inner loop, ~15
+    times faster than ``transform`` on a shifted copy, equal to ~1e-15 relative (not to the
+    bit: where a RANSAC counts inliers, ``transform`` keeps its bits).
     """
     M = np.empty((3, 4))
-    M[:, :3], M[:, 3] = A, -(A @ origin)
+    M[:, :3], M[:, 3] = A, b
     return cv2.transform(np.ascontiguousarray(points).reshape(-1, 1, 3), M).reshape(-1, 3)
 
 
