@@ -11,7 +11,9 @@ averaged over the better half of the neighbours so that one occluded view does n
 the best plane is refined by a parabola through its neighbours' costs. The images are
 undistorted to a pinhole camera first (homographies hold only there).
 """
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import Callable
 
 import cv2
 import numpy as np
@@ -51,10 +53,12 @@ class SweepConfig:
     plane_trials: int = 100  # RANSAC samples
     plane_min_share: float = 0.2  # fewer points on the best plane: no slanted sweep
     plane_min_slant_deg: float = 20.0  # a plane facing the camera closer than this: none
+    threads: int = 2  # planes swept on this many threads at once (the same depth)
 
     def __post_init__(self) -> None:
         if not 0.0 < self.scale <= 1.0 or self.views < 1 or self.window_px < 3 or \
-                self.window_px % 2 == 0 or self.plane_step_px <= 0.0 or self.max_planes < 8:
+                self.window_px % 2 == 0 or self.plane_step_px <= 0.0 or self.max_planes < 8 \
+                or self.threads < 1:
             raise ValueError(f'bad sweep config: {self}')
 
 
@@ -132,46 +136,88 @@ def _family(ref: Image32, stats: tuple[Image32, Image32], others: list[tuple[Ima
     """
     Sweep of the planes ``normal . X = 1 / s`` for ``s`` in ``offsets`` (evenly spaced).
 
+    The planes are split into ``cfg.threads`` runs swept at once (OpenCV and numpy let go of
+    the GIL while they work on an image); each pixel's best plane of all runs is the first
+    of the lowest costs, as one run finds it, so the result does not depend on the split.
+
     :returns: each pixel's best cost (inf where its best plane is the first or last: no
         minimum inside the range) and its sub-plane ``s``, refined by a parabola.
     """
-    h, w = ref.shape
-    win = (cfg.window_px, cfg.window_px)
-    mu_r, sd_r_eps = stats
-    floor = np.float32(1.0 - cfg.truncate)  # a neighbour's correlation counts at least this
-    best = np.full((h, w), np.inf, np.float32)
-    index = np.zeros((h, w), np.int32)
-    left, right, previous = best.copy(), best.copy(), best.copy()
-    tmp, cost = np.empty_like(best), np.empty_like(best)
-    for k, s in enumerate(offsets):
-        score = np.zeros((h, w), np.float32)
-        for img, T in others:
-            # x_other ~ K (R + t n^T / d) K^-1 x_ref for the plane n . X = d
-            H = K @ (T[:3, :3] + np.outer(T[:3, 3], normal * s)) @ K_inv
-            warped = cv2.warpPerspective(img, H, (w, h), flags=cv2.INTER_LINEAR
-                                         | cv2.WARP_INVERSE_MAP, borderValue=0.0)
-            mu_w = cv2.boxFilter(warped, -1, win)
-            var_w = cv2.boxFilter(np.multiply(warped, warped, out=tmp), -1, win)
-            cross = cv2.boxFilter(np.multiply(ref, warped, out=tmp), -1, win)
-            var_w -= np.multiply(mu_w, mu_w, out=tmp)
-            np.sqrt(np.maximum(var_w, 1e-4, out=var_w), out=var_w)
-            cross -= np.multiply(mu_r, mu_w, out=tmp)
-            cross /= np.multiply(var_w, sd_r_eps, out=tmp)  # the correlation
-            score += np.maximum(cross, floor, out=cross)
-        np.subtract(1.0, score / len(others), out=cost)
-        np.copyto(right, cost, where=index == k - 1)
-        better = cost < best
-        np.copyto(left, previous, where=better)
-        np.copyto(right, np.inf, where=better)
-        np.copyto(best, cost, where=better)
-        np.copyto(index, k, where=better)
-        previous, cost = cost, previous
+    def cost(k: int) -> Image32:
+        return _plane_cost(ref, stats, others, K, K_inv, normal * offsets[k], cfg)
+
+    bounds = np.linspace(0, len(offsets), max(1, min(cfg.threads, len(offsets) // 8)) + 1)
+    bounds = bounds.astype(int)
+    runs = list(zip(bounds[:-1], bounds[1:]))
+    if len(runs) == 1:
+        parts = [_best_planes(cost, 0, len(offsets), len(offsets))]
+    else:
+        with ThreadPoolExecutor(len(runs)) as pool:
+            parts = list(pool.map(lambda r: _best_planes(cost, r[0], r[1], len(offsets)), runs))
+    best, index, left, right = parts[0]
+    for b, i, lt, rt in parts[1:]:  # a later run's plane only when strictly better
+        better = b < best
+        for mine, theirs in ((best, b), (index, i), (left, lt), (right, rt)):
+            np.copyto(mine, theirs, where=better)
     # Parabola through the best plane and its two neighbours (in plane-index units).
     curve = left - 2.0 * best + right
     ok = np.isfinite(curve) & (curve > 1e-6)
     offset = np.where(ok, 0.5 * (left - right) / np.where(ok, curve, 1.0), 0.0)
     refined = offsets[index] + np.clip(offset, -0.5, 0.5) * (offsets[1] - offsets[0])
     return np.where(ok, best, np.inf).astype(np.float32), refined.astype(np.float32)
+
+
+def _best_planes(cost: Callable[[int], Image32], lo: int, hi: int,
+                 count: int) -> tuple[Image32, npt.NDArray[np.int32], Image32, Image32]:
+    """
+    Each pixel's lowest cost among planes ``lo`` to ``hi - 1`` (the first, on a tie), its
+    plane, and the costs of the planes either side of it (inf beyond the ``count`` planes):
+    the planes ``lo - 1`` and ``hi`` are swept for those too.
+    """
+    first = cost(lo)
+    best = np.full(first.shape, np.inf, np.float32)
+    index = np.zeros(first.shape, np.int32)
+    left, right = best.copy(), best.copy()
+    previous = cost(lo - 1) if lo > 0 else best.copy()
+    for k in range(lo, hi + 1 if hi < count else hi):
+        current = first if k == lo else cost(k)
+        np.copyto(right, current, where=index == k - 1)
+        if k == hi:
+            break
+        better = current < best
+        np.copyto(left, previous, where=better)
+        np.copyto(right, np.inf, where=better)
+        np.copyto(best, current, where=better)
+        np.copyto(index, k, where=better)
+        previous = current
+    return best, index, left, right
+
+
+def _plane_cost(ref: Image32, stats: tuple[Image32, Image32],
+                others: list[tuple[Image32, FloatArray]], K: FloatArray, K_inv: FloatArray,
+                plane: FloatArray, cfg: SweepConfig) -> Image32:
+    """1 - the mean correlation (each at least ``1 - truncate``) of the neighbours warped
+    into the reference through the plane ``plane . X = 1``."""
+    h, w = ref.shape
+    win = (cfg.window_px, cfg.window_px)
+    mu_r, sd_r_eps = stats
+    floor = np.float32(1.0 - cfg.truncate)  # a neighbour's correlation counts at least this
+    score = np.zeros((h, w), np.float32)
+    tmp = np.empty_like(score)
+    for img, T in others:
+        # x_other ~ K (R + t n^T / d) K^-1 x_ref for the plane n . X = d
+        H = K @ (T[:3, :3] + np.outer(T[:3, 3], plane)) @ K_inv
+        warped = cv2.warpPerspective(img, H, (w, h), flags=cv2.INTER_LINEAR
+                                     | cv2.WARP_INVERSE_MAP, borderValue=0.0)
+        mu_w = cv2.boxFilter(warped, -1, win)
+        var_w = cv2.boxFilter(np.multiply(warped, warped, out=tmp), -1, win)
+        cross = cv2.boxFilter(np.multiply(ref, warped, out=tmp), -1, win)
+        var_w -= np.multiply(mu_w, mu_w, out=tmp)
+        np.sqrt(np.maximum(var_w, 1e-4, out=var_w), out=var_w)
+        cross -= np.multiply(mu_r, mu_w, out=tmp)
+        cross /= np.multiply(var_w, sd_r_eps, out=tmp)  # the correlation
+        score += np.maximum(cross, floor, out=cross)
+    return np.subtract(1.0, score / len(others), out=score)
 
 
 def dominant_plane(points: FloatArray, cfg: SweepConfig,

@@ -342,3 +342,17 @@ def test_statistical_outlier_removal_can_be_turned_off() -> None:
     err = mesh.distance(every @ poses[2][:3, :3].T + poses[2][:3, 3])
     err_removed = mesh.distance(removed @ poses[2][:3, :3].T + poses[2][:3, 3])
     assert np.median(err_removed) > 3 * np.median(err)
+
+
+def test_the_sweep_split_over_threads_gives_the_same_depth_to_the_bit() -> None:
+    images, cam, poses, _ = grazing_keyframes()
+    depths = []
+    for threads in (1, 2, 3):
+        cfg = dense_sweep.SweepConfig(scale=0.5, threads=threads)
+        views = [dense_sweep.pinhole_view(image, cam, cfg) for image in images]
+        others = [(views[k][1], dense_stereo.relative_pose(poses[2], poses[k]))
+                  for k in (0, 1, 3, 4)]
+        plane = (np.array([0.0, -0.8, -0.6]), 0.5)  # a slanted family too
+        depths.append(dense_sweep.sweep(views[2][1], others, views[2][2], 0.3, 8.0, cfg, plane))
+    assert np.mean(depths[0] > 0) > 0.2
+    assert all(np.array_equal(depths[0], d) for d in depths[1:])
