@@ -16,8 +16,10 @@ points are kept where no pair of the keyframe has depth, and it votes for the pa
 Optionally (``dense_facade``) far planes fitted to a wide-baseline sweep fill what is left,
 and (``dense_fill``) plain holes get the plane of the points around them.
 """
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any
+from functools import partial
+from typing import Any, Callable
 
 import cv2
 import numpy as np
@@ -54,6 +56,7 @@ class FusionConfig:
     # (0: no statistical removal)
     normal_neighbours: int = 20  # points used for a normal
     move_voxels: float = 0.25  # a keyframe whose new pose moves its points less stays fused
+    threads: int = 2  # keyframe clouds of one update built at once (the same clouds)
 
 
 @dataclass
@@ -156,20 +159,32 @@ class DenseFusion:
                 for j in range(max(0, i - self.cfg.neighbours), i + 1):
                     if j == i or revote and FACADE in self._frames[stamps[j]].depths:
                         outcome[j], sweep_only[j] = _NEW, False
+        builds: dict[int, Callable[[], Any]] = {}  # each reads the depth maps, writes its own
         for i, s in enumerate(stamps):
             kf = self._frames[s]
             if not kf.depths:
                 kf.cloud, kf.placed = None, None
             elif sweep_only[i] and kf.cloud is not None and self._fill_pending(stamps, i):
-                kf.cloud, kf.placed = self._with_sweep(kf.cloud, stamps, i), None
+                builds[s] = partial(self._with_sweep, kf.cloud, stamps, i)
             elif outcome[i] == _NEW or kf.cloud is None or \
                     not kf.filled and self._fill_ready(stamps, i):
-                kf.cloud, kf.placed = self._keyframe_cloud(stamps, i), None
+                builds[s] = partial(self._keyframe_cloud, stamps, i)
             elif outcome[i] != 1.0:
                 kf.cloud.scale(outcome[i], np.zeros(3))  # a new scale: depth x baseline ratio
                 kf.placed = None
+        for s, cloud in zip(builds, self._built(list(builds.values()))):
+            self._frames[s].cloud, self._frames[s].placed = cloud, None
         self._stamps = stamps
         return moved or any(o != 1.0 for o in outcome)
+
+    def _built(self, builds: list[Callable[[], Any]]) -> list[Any]:
+        """The keyframe clouds of ``builds``, ``threads`` at once: numpy and OpenCV let go of
+        the GIL in the consistency check (a new keyframe's first cloud and an older one's
+        filled rebuild come in the same update)."""
+        if self.cfg.threads < 2 or len(builds) < 2:
+            return [build() for build in builds]
+        with ThreadPoolExecutor(min(self.cfg.threads, len(builds))) as pool:
+            return list(pool.map(lambda build: build(), builds))
 
     def catch_up(self) -> bool:
         """Work on the backlog with the latest poses; returns whether the cloud changed."""
