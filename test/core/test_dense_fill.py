@@ -124,3 +124,20 @@ def test_a_fill_config_that_cannot_fill_is_refused(field: str) -> None:
     """A negative lag, or no plane or hole to try, is a typo in a config, not a quiet no-op."""
     with pytest.raises(ValueError):
         dense_fill.FillConfig(**{field: -1 if field == 'lag' else 0})
+
+
+def test_the_clouds_of_one_update_built_on_two_threads_are_the_same() -> None:
+    images, cam, poses, _ = sideways_keyframes()
+    clouds, together = [], []
+    for threads in (1, 2):
+        fusion = dense_fusion.DenseFusion(
+            dense_stereo.StereoConfig(scale=1.0),
+            dense_fusion.FusionConfig(both_sides=False, threads=threads), fill=FILL)
+        built = fusion._built
+        fusion._built = lambda builds: together.append(len(builds)) or built(builds)
+        for k, image in enumerate(images[:5]):  # a new keyframe's cloud beside a fill's
+            fusion.add_keyframe(k, image, cam)
+            fusion.update({j: poses[j] for j in range(k + 1)})
+        clouds.append(fusion.cloud())
+    assert max(together) >= 2 and len(clouds[0][0]) > 1000
+    assert all(np.array_equal(a, b) for a, b in zip(*clouds))
