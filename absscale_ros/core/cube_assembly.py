@@ -182,7 +182,7 @@ def cube_detection(faces: list['Face'], labels: list[npt.NDArray[np.int64]], Ks:
             w = index.get(int(lab[(c + 1) % 4]))
             if w is not None and w != v:
                 edges.add((min(v, w), max(v, w)))
-    vertices = np.array([lines.nearest_point(np.array(ls)) for ls in meeting])
+    vertices = lines.nearest_points([np.array(ls) for ls in meeting])
     h, w = shape[:2]
     ok = (vertices >= BORDER_PX).all(axis=1) & (vertices[:, 0] <= w - 1 - BORDER_PX) & (
         vertices[:, 1] <= h - 1 - BORDER_PX)

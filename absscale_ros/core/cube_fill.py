@@ -36,6 +36,8 @@ def missing_faces(proj: Array, reported: list[tuple[str, Array]]) -> list[tuple[
     colour no ``reported`` face (colour, outline) has; empty unless the reported faces name two
     of the three opposite pairs' colours without contradiction.
     """
+    if {c for c, _ in reported} >= set(targets.CUBE_COLOURS):
+        return []  # every colour is reported: none can be missing
     shown = [(p, proj[list(face)]) for p, pair in enumerate(PAIRS) for face in pair]
     # A face is shown when it winds as the posing face does (seen from outside, both).
     turn = [cv2.contourArea(poly.astype(np.float32), oriented=True) for _, poly in shown]

@@ -50,13 +50,26 @@ def occluder_sides(image_bgr: npt.NDArray[np.uint8], side_lines: Array, corners:
     :param corners: (4, 2) px, corner i starting side i.
     :param outside: (4, 3) BGR just outside each side.
     """
-    found = np.zeros(4, bool)
-    a, b = corners, corners[NEXT]
+    return occluder_sides_many(image_bgr, side_lines[None], corners[None], outside[None],
+                               min_step, reach, min_frac, max_tilt_deg)[0]
+
+
+def occluder_sides_many(image_bgr: npt.NDArray[np.uint8], side_lines: Array, corners: Array,
+                        outside: Array, min_step: float,
+                        reach: tuple[float, float] = (0.04, 0.2), min_frac: float = 0.6,
+                        max_tilt_deg: float = 20.0) -> npt.NDArray[np.bool_]:
+    """
+    Return (F, 4) ``occluder_sides`` of F faces ((F, 4, 3) lines, (F, 4, 2) corners, (F, 4, 3)
+    outside colours), all read in one remap: each side's result is its own.
+    """
+    found = np.zeros(4 * len(corners), bool)
+    a, b = corners.reshape(-1, 2), corners[:, NEXT].reshape(-1, 2)
+    side_lines, outside = side_lines.reshape(-1, 3), outside.reshape(-1, 3)
     length = np.linalg.norm(b - a, axis=1)
-    d = (b - a) / np.maximum(length, 1e-9)[:, None]  # (4, 2) along each side
+    d = (b - a) / np.maximum(length, 1e-9)[:, None]  # (4F, 2) along each side
     up = np.flatnonzero(np.abs(d[:, 0]) <= np.sin(np.deg2rad(max_tilt_deg)))
     if not len(up):
-        return found
+        return found.reshape(-1, 4)
     h, w = image_bgr.shape[:2]
     t = np.linspace(reach[0], reach[1], SAMPLES)[None, :] * length[up, None]  # (U, K)
     # (U, 2 ends, K, 2): points past the end b and before the start a
@@ -82,7 +95,7 @@ def occluder_sides(image_bgr: npt.NDArray[np.uint8], side_lines: Array, corners:
         found[up[i]] = bool(((np.linalg.norm(med_out - med_in, axis=1) >= min_step) &
                              (np.linalg.norm(med_out - o, axis=1) <
                               np.linalg.norm(med_in - o, axis=1))).all())
-    return found
+    return found.reshape(-1, 4)
 
 
 def join_pieces(faces: list['Face'], tol_frac: float, max_aspect: float) -> list['Face']:

@@ -12,6 +12,7 @@ corners are measured on a few pixels only (along the side's normal, not along th
 third cube edge), so the detector reports the strip's outline and colour but not those
 corners as vertices.
 """
+import functools
 from typing import Callable
 
 import cv2
@@ -193,7 +194,7 @@ def _width_line(t: Array, w: Array, tol: float) -> tuple[float, float]:
         tm, wm = tk.mean(), wk.mean()
         slope = ((tk - tm) * (wk - wm)).sum() / max(((tk - tm) ** 2).sum(), 1e-12)
         return wm - slope * tm, wm + slope * (1.0 - tm)
-    i, j = np.triu_indices(len(t), 1)
+    i, j = _pairs(len(t))
     pair = t[j] != t[i]
     i, j = i[pair], j[pair]
     slopes = (w[j] - w[i]) / (t[j] - t[i])
@@ -205,6 +206,12 @@ def _width_line(t: Array, w: Array, tol: float) -> tuple[float, float]:
     best = int(np.argmax(counts))
     beyond = w > w[i[best]] + slopes[best] * (t - t[i[best]])
     return fit(near[best] if (beyond | near[best]).all() else np.ones(len(t), bool))
+
+
+@functools.lru_cache(maxsize=None)
+def _pairs(n: int) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """``np.triu_indices(n, 1)``, kept per ``n`` (at most ``PROFILES``; ~50 us a call)."""
+    return np.triu_indices(n, 1)
 
 
 def _unlike_cube(colour: str, beyond: list[str]) -> bool:

@@ -18,6 +18,7 @@ no cube is found, the regions that fail the tests or the refinement are cut into
 for again.
 """
 from dataclasses import dataclass
+import functools
 
 import cv2
 import numpy as np
@@ -263,19 +264,31 @@ def colour_masks(hsv: npt.NDArray[np.uint8], cfg: CubeConfig
     Return ``colour_mask`` of every cube colour: one saturation-value test and one hue
     look-up table for all of them (a third of the CPU of three ``inRange`` on HSV).
     """
+    hue_lut, bit_luts = _colour_luts(tuple(cfg.hue_ranges().items()))
+    s_lo, v_lo = int(round(cfg.sat_min * 255)), int(round(cfg.val_min * 255))
+    label = cv2.bitwise_and(cv2.LUT(cv2.extractChannel(hsv, 0), hue_lut),
+                            cv2.inRange(hsv, (0, s_lo, v_lo), (255, 255, 255)))
+    return {c: cv2.LUT(label, lut) for c, lut in bit_luts}
+
+
+@functools.lru_cache(maxsize=8)
+def _colour_luts(hues: tuple[tuple[str, tuple[float, float]], ...]
+                 ) -> tuple[npt.NDArray[np.uint8], tuple[tuple[str, npt.NDArray[np.uint8]], ...]]:
+    """
+    Return the hue look-up table of ``colour_masks`` (bit b for the b-th colour of ``hues``,
+    (name, (lo, hi) degrees)) and per colour the table of its bit (0 or 255), made once.
+    """
     lut = np.zeros(256, np.uint8)
-    for bit, hue in enumerate(cfg.hue_ranges().values()):
+    for bit, (_, hue) in enumerate(hues):
         lo_h, hi_h = int(np.ceil(hue[0] / 2.0)), int(hue[1] / 2.0)  # OpenCV stores hue / 2
         if lo_h <= hue[1] / 2.0 and hue[0] <= hue[1]:
             lut[lo_h:hi_h + 1] |= 1 << bit
         elif hue[0] > hue[1]:
             lut[lo_h:181] |= 1 << bit
             lut[:hi_h + 1] |= 1 << bit
-    s_lo, v_lo = int(round(cfg.sat_min * 255)), int(round(cfg.val_min * 255))
-    label = cv2.bitwise_and(cv2.LUT(cv2.extractChannel(hsv, 0), lut),
-                            cv2.inRange(hsv, (0, s_lo, v_lo), (255, 255, 255)))
-    return {c: cv2.compare(cv2.bitwise_and(label, 1 << bit), 0, cv2.CMP_GT)
-            for bit, c in enumerate(cfg.hue_ranges())}
+    values = np.arange(256)
+    return lut, tuple((c, np.where(values & (1 << bit), 255, 0).astype(np.uint8))
+                      for bit, (c, _) in enumerate(hues))
 
 
 def _face_quads(mask: npt.NDArray[np.uint8], cfg: CubeConfig, scale: float = 1.0,
@@ -346,25 +359,38 @@ def _hough_sides(faces: list[tuple[Array, Array]], cfg: CubeConfig) -> list[Arra
     Return per face (rough quad, outline px) its (4, 3) side lines, each by a Hough vote over
     the outline near that side (all sides of all faces in one ``lines.hough_lines`` call).
     """
-    side_lines, votes = [], []  # votes: (face, side, outline points, theta guess, rho guess)
-    for f, (quad, contour_px) in enumerate(faces):
-        ls = lines.side_lines(quad)
-        side_lines += list(ls)
-        # (4, N): each outline point's distance from each side, and where along it it lies
-        x, y = contour_px[:, 0], contour_px[:, 1]
-        d = np.abs(ls[:, :1] * x + ls[:, 1:2] * y + ls[:, 2:])
-        seg = quad[NEXT] - quad
-        t = (seg[:, :1] * (x - quad[:, :1]) + seg[:, 1:] * (y - quad[:, 1:])) / np.maximum(
-            (seg * seg).sum(axis=1), 1e-9)[:, None]
-        close = (d < 6.0) & (t > 0.2) & (t < 0.8)  # clear of cut corners
-        for i in np.flatnonzero(close.sum(axis=1) >= 5):
-            votes.append((f, i, contour_px[close[i]], float(np.arctan2(ls[i, 1], ls[i, 0])),
-                          -ls[i, 2]))
-    peaks = lines.hough_lines([v[2] for v in votes], np.array([v[3] for v in votes]),
-                              np.array([v[4] for v in votes]), cfg.hough_theta_deg)
-    for (f, i, *_), (theta, rho) in zip(votes, peaks):
-        side_lines[4 * f + i] = np.array([np.cos(theta), np.sin(theta), -rho])
-    return [np.array(side_lines[4 * f:4 * f + 4]) for f in range(len(faces))]
+    if not faces:
+        return []
+    quads = np.stack([q for q, _ in faces])  # (F, 4, 2)
+    side_lines = np.stack([lines.side_lines(q) for q in quads])  # (F, 4, 3)
+    # Every outline point's distance from each side of its face, and where along it it lies:
+    # all faces' outlines at once, (P, 4).
+    owner = np.repeat(np.arange(len(faces)), [len(c) for _, c in faces])
+    pts = np.concatenate([c for _, c in faces])
+    x, y = pts[:, :1], pts[:, 1:]
+    ls, quad = side_lines[owner], quads[owner]
+    d = np.abs(ls[..., 0] * x + ls[..., 1] * y + ls[..., 2])
+    seg = quads[:, NEXT] - quads
+    seg_sq = np.maximum((seg * seg).sum(axis=2), 1e-9)[owner]
+    seg = seg[owner]
+    t = (seg[..., 0] * (x - quad[..., 0]) + seg[..., 1] * (y - quad[..., 1])) / seg_sq
+    close = (d < 6.0) & (t > 0.2) & (t < 0.8)  # clear of cut corners
+    # A side votes with 5 close points at least; its points in outline order.
+    key = owner[:, None] * 4 + np.arange(4)
+    counts = np.bincount(key[close], minlength=4 * len(faces))
+    voting = counts >= 5
+    p, i = np.nonzero(close & voting[key])
+    order = np.argsort(key[p, i], kind='stable')
+    votes = np.flatnonzero(voting)  # face * 4 + side
+    if not len(votes):
+        return list(side_lines)
+    flat = side_lines.reshape(-1, 3)
+    peaks = lines.hough_lines_flat(pts[p[order]], np.searchsorted(votes, key[p, i][order]),
+                                   np.arctan2(flat[votes, 1], flat[votes, 0]),
+                                   -flat[votes, 2], cfg.hough_theta_deg)
+    for v, (theta, rho) in zip(votes, peaks):
+        flat[v] = np.array([np.cos(theta), np.sin(theta), -rho])
+    return list(side_lines)
 
 
 def _refine_faces(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array, Array]],
@@ -415,9 +441,10 @@ def _refine_each(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array,
     if not tried.any():
         return [None] * len(rough)
     refined, supports, steps, inside, outside = res
-    faces: list[Face | None] = []
+    # (side lines, supports, corners, border cut) of the faces whose sides pass the checks
+    kept: list[tuple[Array, Array, Array, tuple[int, Array] | None] | None] = []
     for f, (colour, hough, quad) in enumerate(rough):
-        faces.append(None)  # until it passes
+        kept.append(None)  # until it passes
         if not tried[f]:
             continue
         ls, sup = refined[4 * f:4 * f + 4].copy(), supports[4 * f:4 * f + 4].copy()
@@ -441,24 +468,49 @@ def _refine_each(image_bgr: npt.NDArray[np.uint8], rough: list[tuple[str, Array,
         seen = np.arange(4) != out
         if np.abs(corners - hough_corners)[seen].max() > max(4.0, 0.25 * side_px):
             continue  # the refinement ran off to another edge
-        if cut is None and out < 0 and cfg.occluder_max_tilt_deg > 0.0:
-            # A post in front cuts the face along its edge: that side's corners are the post's.
-            occ = cube_occluder.occluder_sides(image_bgr, ls, corners,
-                                               outside[4 * f:4 * f + 4], cfg.min_step,
-                                               cfg.occluder_reach, cfg.occluder_min_frac,
-                                               cfg.occluder_max_tilt_deg)
+        kept[-1] = (ls, sup, corners, cut)
+    occluded = _occluded(image_bgr, kept, outs, outside, cfg)
+    faces: list[Face | None] = []
+    for f, (colour, _, _) in enumerate(rough):
+        faces.append(None)
+        if kept[f] is None:
+            continue
+        ls, sup, corners, cut = kept[f]  # type: ignore[misc]
+        occ = occluded.get(f)
+        if occ is not None:
             if occ.sum() > 1:
                 continue
             if occ.any():
                 cut = (int(np.argmax(occ)), ls[int(np.argmax(occ))])
+        real = reals[f]
         # A cut face poses the cube from an extrapolation: only on sharp sides (a motion
         # streak across them shifts its seen corners by pixels); smeared, it is mute.
         ramp = 0.0 if cut is None else float(sides.ramp_widths(
             image_bgr, ls[real], np.stack([corners, corners[NEXT]], 1)[real],
             6.0, inside[4 * f:4 * f + 4][real], outside[4 * f:4 * f + 4][real]).max())
         faces[-1] = Face(colour, corners, ls, sup, runs_on=ramp > CUT_MAX_RAMP_PX,
-                         cut=-1 if cut is None else cut[0], outside=out, ramp_px=ramp)
+                         cut=-1 if cut is None else cut[0], outside=outs[f], ramp_px=ramp)
     return faces
+
+
+def _occluded(image_bgr: npt.NDArray[np.uint8],
+              kept: list[tuple[Array, Array, Array, tuple[int, Array] | None] | None],
+              outs: list[int], outside: Array, cfg: CubeConfig) -> dict[int, npt.NDArray]:
+    """
+    Return face index -> (4,) ``cube_occluder.occluder_sides`` of the ``kept`` faces (side
+    lines, supports, corners, border cut) that neither the border cuts nor has a corner
+    beyond it: a post in front cuts the face along its edge, that side's corners are the
+    post's. All faces in one call (one remap).
+    """
+    at = [f for f, k in enumerate(kept) if k is not None and k[3] is None and outs[f] < 0]
+    if not at or cfg.occluder_max_tilt_deg <= 0.0:
+        return {}
+    found = cube_occluder.occluder_sides_many(
+        image_bgr, np.stack([kept[f][0] for f in at]),  # type: ignore[index]
+        np.stack([kept[f][2] for f in at]),  # type: ignore[index]
+        np.stack([outside[4 * f:4 * f + 4] for f in at]), cfg.min_step, cfg.occluder_reach,
+        cfg.occluder_min_frac, cfg.occluder_max_tilt_deg)
+    return dict(zip(at, found))
 
 
 def _real_sides(rough: list[tuple[str, Array, Array]], w: int, h: int, blurred: bool

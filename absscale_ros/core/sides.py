@@ -228,24 +228,27 @@ def fit_lines(pts: Array, weights: Array, outward: Array, scale_px: Array,
     orients the normals.
     """
     w = weights.copy()
-    x, y = np.ascontiguousarray(pts[..., 0]), np.ascontiguousarray(pts[..., 1])
-    nx = ny = mx = my = np.zeros(len(pts))
+    # x and y stacked, (2, S, n): one numpy call for both coordinates (each row's sums are
+    # the same pairwise sums as on x and y apart).
+    xy = np.ascontiguousarray(pts.transpose(2, 0, 1))
+    nx = ny = np.zeros(len(pts))
+    m = np.zeros((2, len(pts)))
     for it in range(iters):
         sw = np.maximum(w.sum(axis=1), 1e-12)
-        mx, my = (w * x).sum(axis=1) / sw, (w * y).sum(axis=1) / sw
-        dx, dy = x - mx[:, None], y - my[:, None]
-        wdx = w * dx  # (w * dx * dx evaluates as (w * dx) * dx: the same sums)
-        cxx, cyy = (wdx * dx).sum(axis=1), (w * dy * dy).sum(axis=1)
-        cxy = (wdx * dy).sum(axis=1)
+        m = (w * xy).sum(axis=2) / sw
+        d = xy - m[..., None]
+        wd = w * d  # (w * dx * dx evaluates as (w * dx) * dx: the same sums)
+        cxx, cyy = (wd * d).sum(axis=2)
+        cxy = (wd[0] * d[1]).sum(axis=1)
         phi = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)  # direction of largest spread
         nx, ny = -np.sin(phi), np.cos(phi)
         flip = np.where(nx * outward[:, 0] + ny * outward[:, 1] < 0.0, -1.0, 1.0)
         nx, ny = nx * flip, ny * flip
         if it == iters - 1:
             break  # (no weights after the last fit)
-        r = (dx * nx[:, None] + dy * ny[:, None]) / (4.685 * scale_px[:, None])
+        r = (d[0] * nx[:, None] + d[1] * ny[:, None]) / (4.685 * scale_px[:, None])
         w = weights * np.where(np.abs(r) < 1.0, (1.0 - r ** 2) ** 2, 0.0)
-    return np.stack([nx, ny, -(nx * mx + ny * my)], axis=1)
+    return np.stack([nx, ny, -(nx * m[0] + ny * m[1])], axis=1)
 
 
 def refine(image_bgr: npt.NDArray[np.uint8], lines_: Array, ends: Array,

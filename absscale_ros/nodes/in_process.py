@@ -13,14 +13,12 @@ only there, for the rest of the run: none is delivered twice or out of order.
 
 A handed message is delivered on its subscription's executor, as a DDS message would be: the
 publisher (the frame decoder's worker thread) queues it and gives the executor a task that
-delivers the oldest queued one (``Executor.create_task``, which any thread may call; the events
-executor has no guard conditions): one message per task, so a node that is behind takes its
-backlog between its other callbacks, as DDS interleaved them. The queue keeps the
-subscription's history depth: live, a node that is behind drops the oldest frames as it did. A
-message handed before the node is added to an executor gets its task with the next one. A
-subscription whose node was destroyed no longer counts as local. A task belongs to no callback
-group: on a multi-threaded executor it could run beside the node's other callbacks (every node
-that subscribes this way spins on a single-threaded one).
+delivers what is queued (``Executor.create_task``, which any thread may call; the events
+executor has no guard conditions). The queue keeps the subscription's history depth: live, a
+node that is behind drops the oldest frames as it did. A message handed before the node is
+added to an executor waits for the next one. A task belongs to no callback group: on a
+multi-threaded executor it could run beside the node's other callbacks (every node that
+subscribes this way spins on a single-threaded one).
 Subscribers share the message: they must not write into it (none does; they read frames).
 """
 from collections import deque
@@ -57,43 +55,31 @@ class Subscription:
         self._callback = callback
         keep = qos.depth if qos.history == HistoryPolicy.KEEP_LAST else None
         self._queue: deque[Any] = deque(maxlen=keep)
-        self._tasks = 0  # tasks given to the executor and not yet run
         self._lock = threading.Lock()
         self._node = node
         _subscriptions(node, self.topic_name).append(weakref.ref(self))
-
-    @property
-    def alive(self) -> bool:
-        """False once the node was destroyed (it destroys its subscriptions)."""
-        return any(sub is self.dds for sub in self._node.subscriptions)
 
     def hand(self, msg: Any) -> None:
         """Queue ``msg`` for the callback on the node's executor (from any thread)."""
         with self._lock:
             self._queue.append(msg)
-            executor = self._node.executor
-            if executor is None:
-                return
-            missing = len(self._queue) - self._tasks  # messages handed before an executor
-            self._tasks += max(missing, 0)
-        for _ in range(missing):
+        executor = self._node.executor
+        if executor is not None:  # one task per message: a task finds it, or an earlier one
             try:
-                executor.create_task(self._deliver_one)
+                executor.create_task(self._deliver)
             except (AttributeError, RuntimeError):
                 # a shut-down executor (the classic one has lost its guard condition): the
-                # messages are dropped, as DDS would drop them for a node no longer spinning
+                # message is dropped, as DDS would drop it for a node no longer spinning
                 with self._lock:
                     self._queue.clear()
-                    self._tasks = 0
-                return
 
-    def _deliver_one(self) -> None:
-        with self._lock:
-            self._tasks -= 1
-            if not self._queue:  # dropped by the history depth: its task finds nothing
-                return
-            msg = self._queue.popleft()
-        self._callback(msg)
+    def _deliver(self) -> None:
+        while True:
+            with self._lock:
+                if not self._queue:
+                    return
+                msg = self._queue.popleft()
+            self._callback(msg)
 
 
 class Publisher:
@@ -111,7 +97,7 @@ class Publisher:
 
     def publish(self, msg: Any) -> None:
         local = [s for ref in self._local
-                 if (s := ref()) is not None and s.msg_type is self._msg_type and s.alive]
+                 if (s := ref()) is not None and s.msg_type is self._msg_type]
         if not self.through_dds and local:
             if self.dds.get_subscription_count() <= len(local):
                 for sub in local:

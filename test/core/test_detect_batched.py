@@ -6,7 +6,7 @@ import sys
 import cv2
 import numpy as np
 
-from absscale_ros.core import detect, detect_cube, detect_sheet, lines, sides
+from absscale_ros.core import cube_occluder, detect, detect_cube, detect_sheet, lines, sides
 
 sys.path.insert(0, str(Path(__file__).parent))
 import synth_targets as st  # noqa: E402
@@ -144,3 +144,38 @@ def test_whole_sheet_too_small_is_not_retried_with_a_hidden_corner(monkeypatch):
     monkeypatch.setattr(detect_sheet, '_whole_small', lambda *a: False)
     assert detect_sheet.detect_sheets(img, detect_sheet.SheetConfig(sheet='letter')) == []
     assert regions[2] > 0  # without the test they would
+
+
+def _cut_frame_faces():
+    """The refined faces of a rendered frame where a post cuts the yellow face, its image."""
+    img = cv2.imread(str(Path(__file__).parents[1] / 'data' / 'sim_cube_cut' /
+                         'outdoor_cube_72_200.jpg'))
+    return img, detect_cube.detect_faces(img, detect_cube.CubeConfig())
+
+
+def test_occluder_sides_of_all_faces_equal_one_call_per_face():
+    img, faces = _cut_frame_faces()
+    assert len(faces) >= 2
+    ls = np.stack([f.lines for f in faces])
+    corners = np.stack([f.corners_px for f in faces])
+    ends = np.stack([corners, corners[:, [1, 2, 3, 0]]], axis=2).reshape(-1, 2, 2)
+    outside = sides.refine(img, ls.reshape(-1, 3), ends, (6.0,), 16)[4].reshape(-1, 4, 3)
+    batched = cube_occluder.occluder_sides_many(img, ls, corners, outside, 15.0)
+    alone = [cube_occluder.occluder_sides(img, f.lines, f.corners_px, o, 15.0)
+             for f, o in zip(faces, outside)]
+    np.testing.assert_array_equal(batched, np.array(alone))
+    assert batched.any()  # the post's edge, found in the batch too
+
+
+def test_nearest_points_equal_one_solve_per_vertex():
+    # Corners of the rendered faces: two lines each, and where faces meet four or six.
+    _, faces = _cut_frame_faces()
+    groups = [np.array([f.lines[c - 1], f.lines[c]]) for f in faces for c in range(4)]
+    pts = np.array([f.corners_px[c] for f in faces for c in range(4)])
+    near = np.hypot(*(pts[:, None] - pts[None]).transpose(2, 0, 1)) < 6.0
+    merged = [np.concatenate([groups[j] for j in np.flatnonzero(row)]) for row in near]
+    assert {len(g) for g in merged} >= {2, 4}
+    sets = groups + merged
+    got = lines.nearest_points(sets)
+    np.testing.assert_array_equal(got, np.array([lines.nearest_point(g) for g in sets]))
+    assert np.abs(got[:len(groups)] - pts).max() < 1e-6  # two lines: their crossing
