@@ -1,5 +1,6 @@
 """sensor_msgs/PointCloud2 to numpy structured arrays and back (xyz, rgb, normals)."""
 from collections.abc import Mapping
+import functools
 from typing import Any
 
 from absscale_ros.conversions.stamps import bytes_array, set_header, stamp_to_ns
@@ -90,6 +91,13 @@ def cloud_msg_to_array(msg: Any, skip_nans: bool = False) -> np.ndarray:
 
 
 def _fields_from_dtype(dtype: np.dtype) -> list[PointField]:
+    # Made once per dtype (~200 us for seven fields: a cloud per frame), shared by the
+    # messages (nothing writes to a message's fields).
+    return list(_dtype_fields(dtype))
+
+
+@functools.lru_cache(maxsize=64)
+def _dtype_fields(dtype: np.dtype) -> tuple[PointField, ...]:
     fields = []
     for name in dtype.names or ():
         field_dtype, offset = dtype.fields[name][:2]
@@ -100,7 +108,7 @@ def _fields_from_dtype(dtype: np.dtype) -> list[PointField]:
                              'cannot carry (INT8..FLOAT64 scalars or fixed arrays only)')
         fields.append(PointField(name=name, offset=int(offset), datatype=code,
                                  count=int(np.prod(shape, dtype=np.int64))))
-    return fields
+    return tuple(fields)
 
 
 def array_to_cloud_msg(array: np.ndarray, stamp_ns: int = 0,
