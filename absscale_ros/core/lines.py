@@ -10,7 +10,10 @@ import math
 
 import cv2
 import numpy as np
-from numpy.linalg import _umath_linalg
+try:  # numpy's private gufunc behind np.linalg.lstsq (numpy is pinned): a stacked solve
+    from numpy.linalg import _umath_linalg
+except ImportError:  # another numpy: one lstsq per set, the same solutions
+    _umath_linalg = None
 import numpy.typing as npt
 
 Array = npt.NDArray[np.float64]
@@ -96,6 +99,8 @@ def nearest_points(groups: list[Array]) -> Array:
     least-squares solutions (LAPACK's, as ``np.linalg.lstsq`` calls it), one call per line
     count instead of one per set (``lstsq`` costs ~40 us of checks around a 2x2 solve).
     """
+    if _umath_linalg is None:
+        return np.array([nearest_point(ls) for ls in groups]).reshape(-1, 2)
     out = np.empty((len(groups), 2))
     by_count: dict[int, list[int]] = {}
     for v, ls in enumerate(groups):

@@ -5,6 +5,7 @@ import sys
 
 import cv2
 import numpy as np
+import pytest
 
 from absscale_ros.core import cube_occluder, detect, detect_cube, detect_sheet, lines, sides
 
@@ -167,7 +168,8 @@ def test_occluder_sides_of_all_faces_equal_one_call_per_face():
     assert batched.any()  # the post's edge, found in the batch too
 
 
-def test_nearest_points_equal_one_solve_per_vertex():
+@pytest.mark.parametrize('stacked', [True, False])
+def test_nearest_points_equal_one_solve_per_vertex(monkeypatch, stacked: bool):
     # Corners of the rendered faces: two lines each, and where faces meet four or six.
     _, faces = _cut_frame_faces()
     groups = [np.array([f.lines[c - 1], f.lines[c]]) for f in faces for c in range(4)]
@@ -176,6 +178,8 @@ def test_nearest_points_equal_one_solve_per_vertex():
     merged = [np.concatenate([groups[j] for j in np.flatnonzero(row)]) for row in near]
     assert {len(g) for g in merged} >= {2, 4}
     sets = groups + merged
+    if not stacked:  # a numpy without the private gufunc: the per-set fallback
+        monkeypatch.setattr(lines, '_umath_linalg', None)
     got = lines.nearest_points(sets)
     np.testing.assert_array_equal(got, np.array([lines.nearest_point(g) for g in sets]))
     assert np.abs(got[:len(groups)] - pts).max() < 1e-6  # two lines: their crossing
