@@ -12,12 +12,15 @@ beside the tracked one is found within that many frames. When the box shows no c
 (``track_lost_wait``), the whole frame is searched at the next frame instead: such a frame
 mostly shows the cube hidden or too oblique, where a whole search (the sharp pass, then the
 split and blur retries on every region of the frame) cost the box's ~5 ms plus ~20 ms, the
-slowest frames of a video.
+slowest frames of a video. A frame where nothing is found but one whole face the cube
+detected in the last ``hold_frames`` frames had, moved as a face moves (from the frame
+before, when that frame reported it so), reports that face (``cube_hold``).
 """
+import cv2
 import numpy as np
 import numpy.typing as npt
 
-from absscale_ros.core import detect_cube, targets
+from absscale_ros.core import cube_hold, detect_cube, targets
 
 Array = npt.NDArray[np.float64]
 
@@ -34,18 +37,60 @@ class CubeTracker:
         self._box: tuple[int, int, int, int] | None = None  # full px, x0 y0 x1 y1
         self._shape: tuple[int, ...] = ()  # (H, W) of the frame the box was found in
         self._since_full = 0
-        self.box_frames = self.whole_frames = self.lost_frames = 0
+        self._last: list[targets.TargetDetection] = []  # the cubes last detected ...
+        self._age = 0  # ... this many frames ago
+        self.box_frames = self.whole_frames = self.lost_frames = self.held_frames = 0
 
     def detect(self, image_bgr: npt.NDArray[np.uint8], K: Array | None = None,
                half: npt.NDArray[np.uint8] | None = None) -> list[targets.TargetDetection]:
-        """Return ``detect_cubes`` of this frame (``image_bgr`` (H, W, 3) uint8 BGR)."""
-        cfg = self._cfg
-        small: list[targets.TargetDetection] = []
+        """Return ``detect_cubes`` of this frame (``image_bgr`` (H, W, 3) uint8 BGR), or a
+        face the cube last detected had (``cube_hold``)."""
         if image_bgr.shape[:2] != self._shape:  # a new resolution: the box is of another frame
-            self._box, self._shape = None, image_bgr.shape[:2]
+            self._box, self._shape, self._last = None, image_bgr.shape[:2], []
+        faces: list[detect_cube.Face] = []
+        small: list[targets.TargetDetection] = []
+        out = self._search(image_bgr, K, half, faces, small)
+        if out:
+            self._last, self._age = out, 0
+            return out
+        self._age += 1
+        if small:
+            return out  # the cube posed, too small to report: no face of it either
+        out = self._held(faces, image_bgr.shape)
+        if out:
+            # The next frame's face is matched to this one (a frame's motion), while the
+            # frames are still counted from the cube's.
+            self._last = out
+            self.held_frames += 1
+        return out
+
+    def _held(self, faces: list[detect_cube.Face], shape: tuple[int, ...]
+              ) -> list[targets.TargetDetection]:
+        """Return the first whole face of ``faces`` that ``cube_hold`` finds a face of the
+        cubes last detected had, as a detection (none when there is none)."""
+        cfg = self._cfg
+        min_area = cfg.min_area_frac * shape[0] * shape[1]
+        for f in faces:
+            if f.thin or f.runs_on or f.cut >= 0 or f.outside >= 0 or f.seen or \
+                    abs(cv2.contourArea(f.corners_px.astype(np.float32))) < min_area:
+                continue
+            for last in self._last:
+                det = cube_hold.held_face(f.colour, f.corners_px, last, self._age, shape, cfg)
+                if det is not None:
+                    return [det]
+        return []
+
+    def _search(self, image_bgr: npt.NDArray[np.uint8], K: Array | None,
+                half: npt.NDArray[np.uint8] | None, faces: list[detect_cube.Face],
+                small: list[targets.TargetDetection]) -> list[targets.TargetDetection]:
+        """Return ``detect_cubes`` of this frame in the box or whole; the sharp pass's faces
+        of the search that settled the frame are added to ``faces``, a cube too small to
+        report to ``small``."""
+        cfg = self._cfg
         if self._box is not None and self._since_full + 1 < cfg.track_full_every:
             posed: list[targets.TargetDetection] = []
-            out = detect_cube.detect_cubes(image_bgr, cfg, K, half, self._box, small, posed)
+            out = detect_cube.detect_cubes(image_bgr, cfg, K, half, self._box, small, posed,
+                                           faces)
             if out or small:
                 self._since_full += 1
                 self.box_frames += 1
@@ -57,7 +102,8 @@ class CubeTracker:
                 self._box = None
                 self.lost_frames += 1
                 return out
-        out = detect_cube.detect_cubes(image_bgr, cfg, K, half, small=small)
+            faces.clear()
+        out = detect_cube.detect_cubes(image_bgr, cfg, K, half, small=small, faces_out=faces)
         self._since_full = 0
         self.whole_frames += 1
         self._box = self._search_box(out or small, image_bgr.shape) if out or small else None

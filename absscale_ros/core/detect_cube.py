@@ -130,6 +130,21 @@ class CubeConfig:
     :param track_lost_wait: when the box shows no cube at all (none posed, of any size or
         place), the whole frame is searched at the next frame instead of this one: the cube
         was lost (hidden, too oblique) far more often than it left the box in one frame.
+    :param hold_frames: frame after frame (``cube_track``), a frame where no cube is found
+        reports one whole face of a cube detected at most this many frames ago when it is
+        that cube's face of its colour moved (from the frame before, when that frame
+        reported it so; ``cube_hold``; 0: never): its corners lie
+        within ``hold_shape_frac`` of its longest side ...
+    :param hold_shape_frac: ... (``hold_shape_px`` at least) of that face's corners mapped by
+        the similarity that fits them best ...
+    :param hold_shape_px: ... in px; its centre moved at most ``hold_shift_frac`` of its
+        longest side ...
+    :param hold_shift_frac: ... plus ``hold_shift_px`` per frame since ...
+    :param hold_shift_px: ... px; its area changed by at most ``hold_scale_change`` squared
+        either way ...
+    :param hold_scale_change: ... (a factor of its size); and only the corners that were
+        vertices of that cube, within ``hold_vertex_px`` ...
+    :param hold_vertex_px: ... px, are reported, with those vertices' ids.
     """
 
     hue_red_deg: tuple[float, float] = (340.0, 20.0)
@@ -173,6 +188,13 @@ class CubeConfig:
     track_margin_px: float = 40.0
     track_max_area_frac: float = 0.5
     track_lost_wait: bool = True
+    hold_frames: int = 4
+    hold_shape_frac: float = 0.02
+    hold_shape_px: float = 2.0
+    hold_shift_frac: float = 0.25
+    hold_shift_px: float = 20.0
+    hold_scale_change: float = 1.25
+    hold_vertex_px: float = 1.5
 
     def __post_init__(self) -> None:
         for name in ('hue_red_deg', 'hue_yellow_deg', 'hue_purple_deg'):
@@ -206,6 +228,11 @@ class CubeConfig:
                 self.track_margin_px < 0.0 or not 0.0 < self.track_max_area_frac <= 1.0:
             raise ValueError('need track_full_every >= 1, track margins >= 0 and '
                              'track_max_area_frac in (0, 1]')
+        if self.hold_frames < 0 or min(self.hold_shape_frac, self.hold_shape_px,
+                                       self.hold_shift_frac, self.hold_shift_px,
+                                       self.hold_vertex_px) < 0.0 or self.hold_scale_change < 1.0:
+            raise ValueError('need hold_frames >= 0, hold tolerances >= 0 and '
+                             'hold_scale_change >= 1')
         if not 1 <= self.min_faces <= 3:
             raise ValueError(f'min_faces must be 1, 2 or 3, got {self.min_faces}')
 
@@ -759,8 +786,8 @@ def detect_cubes(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
                  K: Array | None = None, half: npt.NDArray[np.uint8] | None = None,
                  roi: tuple[int, int, int, int] | None = None,
                  small: list[targets.TargetDetection] | None = None,
-                 posed: list[targets.TargetDetection] | None = None
-                 ) -> list[targets.TargetDetection]:
+                 posed: list[targets.TargetDetection] | None = None,
+                 faces_out: list[Face] | None = None) -> list[targets.TargetDetection]:
     """
     Find tri-colour cubes in a BGR image.
 
@@ -775,6 +802,7 @@ def detect_cubes(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
         added here (for ``cube_track``: the cube in view, too far away).
     :param posed: every cube posed is added here, whether returned or not (under the paper's
         area, or too near the edge of ``roi``).
+    :param faces_out: the faces the sharp pass refined are added here (for ``cube_hold``).
     :returns: one detection per cube, with vertices, ids (see ``targets``), edges and
         per-face polygons.
     """
@@ -788,6 +816,8 @@ def detect_cubes(image_bgr: npt.NDArray[np.uint8], cfg: CubeConfig,
                                          cfg.cut_loose_ramp_px):
             refined[f] = tip
     faces = [f for f in refined if f is not None]
+    if faces_out is not None:
+        faces_out += faces
     under: list[tuple[targets.TargetDetection, float]] = []
     out = _cubes(image_bgr, list(faces), cfg, Ks, small=under)
     if posed is not None:

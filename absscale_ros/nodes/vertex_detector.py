@@ -169,6 +169,7 @@ class VertexDetectorNode(Node):
                 'frames_not_requested': max(0, self._offered - self._frames - self._dropped),
                 'detection_rate': self._with_target / self._frames if self._frames else None,
                 'cube_frames_in_box': self._tracker.box_frames,  # settled near the last cube
+                'cube_frames_held': self._tracker.held_frames,  # one face of the last cube
                 'time_ms_median': float(np.median(times)),
                 'time_ms_p95': float(np.percentile(times, 95))}
 

@@ -1,0 +1,95 @@
+"""
+A cube face the last frames confirmed: one whole face seen again where the cube was.
+
+A frame can show the cube's one face sharply while nothing else confirms it: its neighbour is
+a strip muted by a box of its own colour behind it, or joined with such a box, or cut by a
+post. One face poses nothing believable alone (a face a post cuts along its edge looks like
+a square seen at an angle), so the frame reports no cube. But the cube detected a few frames
+earlier is the same cube: a whole face of the same colour, of the same shape (a
+similarity of that face's corners, the frame-to-frame motion) and close to where that face
+was, is that face again, and its corners are the vertices that face's corners were, with
+their ids (which colours meet there, known from that frame). A post moving over a corner or a
+box joined to a side changes the face's shape, and a face one frame found no vertex at keeps
+none: only corners the cube then confirmed are reported.
+"""
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+import numpy.typing as npt
+
+from absscale_ros.core import targets
+from absscale_ros.core.cube_assembly import BORDER_PX
+
+if TYPE_CHECKING:
+    from absscale_ros.core.detect_cube import CubeConfig
+
+Array = npt.NDArray[np.float64]
+
+
+def similarity_residual(src: Array, dst: Array) -> float:
+    """Return the largest distance px of ``dst`` (N, 2) from ``src`` (N, 2) mapped by the
+    similarity (rotation, uniform scale, shift) that fits them best (least squares)."""
+    s, d = src - src.mean(axis=0), dst - dst.mean(axis=0)
+    zs, zd = s[:, 0] + 1j * s[:, 1], d[:, 0] + 1j * d[:, 1]
+    a = (np.conj(zs) @ zd) / max(float(np.real(np.conj(zs) @ zs)), 1e-12)
+    return float(np.abs(a * zs - zd).max())
+
+
+def held_face(colour: str, corners_px: Array, last: targets.TargetDetection, age: int,
+              shape: tuple[int, ...], cfg: 'CubeConfig') -> targets.TargetDetection | None:
+    """
+    Return a cube detection of one whole face (colour, (4, 2) corners px) when ``last`` (the
+    cube detected ``age`` frames ago, or a face of it held since, in the frame before) had a
+    face of that colour this face moved from (see the module docstring), with the vertices
+    that face's corners were (not those on the border of an image of ``shape``, as
+    ``cube_assembly``); else None. ``cfg``: its ``hold_*`` tolerances.
+    """
+    if not 0 < age <= cfg.hold_frames:
+        return None
+    side = float(np.hypot(*(corners_px - np.roll(corners_px, -1, axis=0)).T).max())
+    area = abs(cv2.contourArea(corners_px.astype(np.float32)))
+    best: tuple[float, Array] | None = None  # (corners' spread px, that face's corners)
+    turn = np.sign(cv2.contourArea(corners_px.astype(np.float32), oriented=True))
+    for c, poly in last.polygons:
+        if c != colour or len(poly) != 4:
+            continue
+        then = np.asarray(poly, np.float64)
+        ratio = area / max(abs(cv2.contourArea(then.astype(np.float32))), 1e-9)
+        shift = corners_px.mean(axis=0) - then.mean(axis=0)
+        if not (1.0 / cfg.hold_scale_change ** 2 <= ratio <= cfg.hold_scale_change ** 2) or \
+                float(np.hypot(*shift)) > cfg.hold_shift_frac * side + cfg.hold_shift_px * age:
+            continue
+        if np.sign(cv2.contourArea(then.astype(np.float32), oriented=True)) != turn:
+            then = then[::-1]  # listed the other way round: never a mirror image
+        # Corner to corner as the face moved, not turned: a rectangle matches itself turned
+        # half way round as well as unturned.
+        spread = [float(np.abs(np.roll(then, -k, axis=0) + shift - corners_px).max())
+                  for k in range(4)]
+        k = int(np.argmin(spread))
+        if best is None or spread[k] < best[0]:
+            best = spread[k], np.roll(then, -k, axis=0)
+    if best is None or similarity_residual(best[1], corners_px) > max(
+            cfg.hold_shape_px, cfg.hold_shape_frac * side):
+        return None
+    then = best[1]
+    # The corners that were vertices of the cube that frame, with their ids.
+    dist = np.hypot(*(then[:, None, :] - last.vertices_px[None, :, :]).transpose(2, 0, 1))
+    nearest = dist.argmin(axis=1)
+    was = dist[np.arange(4), nearest] <= cfg.hold_vertex_px
+    bit = targets.COLOUR_BITS[colour]
+    was &= (last.vertex_ids[nearest] & bit) > 0  # a vertex of this face: its colour meets there
+    h, w = shape[:2]
+    was &= (corners_px >= BORDER_PX).all(axis=1) & (corners_px[:, 0] <= w - 1 - BORDER_PX) & (
+        corners_px[:, 1] <= h - 1 - BORDER_PX)
+    if not was.any() or len(set(nearest[was])) < int(was.sum()):
+        return None
+    kept = np.flatnonzero(was)
+    index = {int(c): i for i, c in enumerate(kept)}
+    edges = sorted((min(index[a], index[b]), max(index[a], index[b]))
+                   for a in kept for b in [(a + 1) % 4] if b in index)
+    return targets.TargetDetection(
+        target_type='cube', name='cube', vertices_px=corners_px[kept].astype(np.float64),
+        vertex_ids=last.vertex_ids[nearest[kept]].astype(np.int64),
+        edges=np.array(edges, dtype=np.int64).reshape(-1, 2),
+        polygons=((colour, corners_px.astype(np.float64)),), score=last.score)
