@@ -10,7 +10,9 @@ around one hole). A hole (plain pixels without depth, cut apart by image edges) 
 plane that most of its rim points lie on, provided that few rim points lie behind it (it is
 the backdrop: points off it are things standing before it) and that those on it lie around
 the hole, not along one side (a desk top meets the wall along its back edge only). Its pixels
-get the plane's depth where that stays within the depths of the plane's rim points.
+get the plane's depth where that stays within the depths of the plane's rim points and, when
+``rim_hull`` is set, near them: a plane known from one patch of a wall tilts, and the error
+grows with the distance from that patch (indoor 77's far wall: -6 to +6 cm across the view).
 Works in the keyframe's sweep view (undistorted, at the sweep's scale).
 """
 from dataclasses import dataclass
@@ -52,6 +54,8 @@ class FillConfig:
     border_open: bool = True  # a hole's stretch along the image border counts against it
     band: float = 0.1  # filled depths beyond the plane's rim points' by more than this
     # fraction: left empty
+    rim_hull: float = -1.0  # filled only within the hull of the plane's rim points, grown by
+    # this x its radius (a tilt's error grows with the distance from them; negative: off)
     max_slant_deg: float = 80.0  # a plane seen more obliquely (its depth runs away): no fill
 
     def __post_init__(self) -> None:
@@ -199,7 +203,22 @@ def _hole_depth(hole: Mask, depth: FloatArray, rays: FloatArray,
     z = np.where(cos > np.cos(np.radians(cfg.max_slant_deg)), d / np.maximum(along, 1e-12), 0.0)
     on_z = rim_z[best_on]
     z[(z < on_z.min() / (1.0 + cfg.band)) | (z > on_z.max() * (1.0 + cfg.band))] = 0.0
+    if cfg.rim_hull >= 0.0:  # near the plane's rim points: a plane is not extrapolated far
+        z[~_within_hull(rim_px[best_on], hole.shape, cfg.rim_hull)[hole]] = 0.0
     return z if (z > 0).mean() >= 0.5 else None
+
+
+def _within_hull(px: npt.NDArray[np.intp], shape: tuple[int, ...], grow: float) -> Mask:
+    """The convex hull of pixels ``px`` (row, col) in an image of ``shape``, grown by
+    ``grow`` x the radius of a disc of its area."""
+    inside = np.zeros(shape, np.uint8)
+    hull = cv2.convexHull(px[:, ::-1].astype(np.int32))
+    cv2.fillConvexPoly(inside, hull, 1)
+    margin = int(round(grow * np.sqrt(cv2.contourArea(hull) / np.pi)))
+    if margin > 0:
+        inside = cv2.dilate(inside, cv2.getStructuringElement(cv2.MORPH_ELLIPSE,
+                                                              (2 * margin + 1,) * 2))
+    return inside > 0
 
 
 def _spread(px: npt.NDArray[np.intp]) -> float:

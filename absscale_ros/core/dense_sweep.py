@@ -9,7 +9,10 @@ neighbour), and each pixel takes the plane whose warps match it best. The match 
 zero-mean normalised cross-correlation over a window (no photometric calibration needed),
 averaged over the better half of the neighbours so that one occluded view does not veto;
 the best plane is refined by a parabola through its neighbours' costs. The images are
-undistorted to a pinhole camera first (homographies hold only there).
+undistorted to a pinhole camera first (homographies hold only there). A window whose texture
+varies only across every view's epipolar line (a straight edge along it: a floor's grout, a
+cabinet's planks, an outline) matches equally well all along the line, so ``min_aperture``
+drops it.
 """
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -45,6 +48,8 @@ class SweepConfig:
     max_depth_baselines: float = 15.0  # deeper than this many baselines across the ray: dropped
     max_step_m: float = 0.0  # range change per pixel of parallax larger than this: dropped
     max_angle_deg: float = 40.0  # neighbours looking further away are not used, degrees
+    min_aperture: float = 0.0  # windows with less of their gradient energy along an epipolar
+    # line (in the view with most) than this share: dropped (a match sliding along an edge)
     edge_jump: float = 0.0  # depth jumps between neighbouring pixels above this fraction ...
     edge_radius_px: int = 3  # ... drop the pixels this close (window spill; 0 jump: keep)
     plane: bool = True  # also sweep planes parallel to the nearby points' dominant plane
@@ -127,7 +132,33 @@ def sweep(ref: Image32, others: list[tuple[Image32, FloatArray]], K: FloatArray,
         better = (cost_p < cost) & (inv_p > 0)
         cost, inv_depth = np.where(better, cost_p, cost), np.where(better, inv_p, inv_depth)
     ok = (cost <= 1.0 - cfg.min_ncc) & (sd_r >= cfg.min_texture) & (inv_depth > 0)
+    if cfg.min_aperture > 0.0:
+        ok &= along_epipolar(ref, K, [T for _, T in others], win) >= cfg.min_aperture
     return np.where(ok, 1.0 / np.maximum(inv_depth, 1e-9), 0.0).astype(np.float32)
+
+
+def along_epipolar(ref: Image32, K: FloatArray, poses: list[FloatArray],
+                   win: tuple[int, int]) -> Image32:
+    """
+    The share of each window's gradient energy that lies along an epipolar line, in the view
+    where it is largest: 0 on a straight edge that runs along every view's epipolar line (the
+    aperture problem: its match slides along the edge), 1 where the texture varies only along
+    one. ``poses`` are T_other_ref.
+    """
+    h, w = ref.shape
+    gx = cv2.Sobel(ref, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(ref, cv2.CV_32F, 0, 1, ksize=3)
+    sxx, syy = cv2.boxFilter(gx * gx, -1, win), cv2.boxFilter(gy * gy, -1, win)
+    sxy = cv2.boxFilter(gx * gy, -1, win)
+    u, v = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    best = np.zeros((h, w), np.float32)
+    for T in poses:
+        e = (K @ (-T[:3, :3].T @ T[:3, 3])).astype(np.float32)  # the other centre's image
+        dx, dy = e[2] * u - e[0], e[2] * v - e[1]  # along the epipolar line through a pixel
+        along = (dx * dx * sxx + 2.0 * dx * dy * sxy + dy * dy * syy) / \
+            np.maximum(dx * dx + dy * dy, 1e-12)
+        np.maximum(best, along, out=best)
+    return best / np.maximum(sxx + syy, 1e-6)
 
 
 def _family(ref: Image32, stats: tuple[Image32, Image32], others: list[tuple[Image32, FloatArray]],

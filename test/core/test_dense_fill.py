@@ -40,10 +40,12 @@ def _points(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
     return np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], axis=1)
 
 
-def test_plain_holes_get_the_depth_of_the_plane_around_them() -> None:
+@pytest.mark.parametrize('hull', [-1.0, 0.5])
+def test_plain_holes_get_the_depth_of_the_plane_around_them(hull: float) -> None:
     _, grey, K, z, ids, measured = _view()
-    planes = dense_fill.scene_planes(_points(measured, K), FILL)
-    filled = dense_fill.fill(measured, grey, K, planes, FILL)
+    fill = dataclasses.replace(FILL, rim_hull=hull)  # the wall lies between its rim points
+    planes = dense_fill.scene_planes(_points(measured, K), fill)
+    filled = dense_fill.fill(measured, grey, K, planes, fill)
     holes = (measured == 0) & np.isfinite(z)
     assert holes.mean() > 0.3  # the plain wall, the desk top, the sheets
     got = filled > 0
@@ -117,6 +119,30 @@ def test_a_new_sweep_adds_its_points_until_the_fill_rebuilds_the_keyframe() -> N
     assert len(held[2]) > len(held[1]) and np.array_equal(held[2][:len(held[1])], held[1])
     assert np.array_equal(held[3], held[2])
     assert not np.array_equal(held[4][:len(held[1])], held[1])
+
+
+def test_a_plane_is_not_extrapolated_beyond_its_rim_points() -> None:
+    """
+    A plain wall, 3 m away, measured on one patch only, framed by things before it (the
+    room's objects and edges, which the rim may hold): its plane is known near the patch
+    alone, and a tilt of it grows with the distance from there (indoor 77's far wall: filled
+    -6 to +6 cm across the image). Filled between its rim points only, the patch's hole is
+    not filled at all; between two patches, the wall between them is.
+    """
+    K = np.array([[260.0, 0.0, 159.5], [0.0, 260.0, 89.5], [0.0, 0.0, 1.0]])
+    grey = np.full((180, 320), 120.0, np.float32)  # plain: every pixel without depth a hole
+    measured = np.zeros((180, 320))
+    measured[:12], measured[-12:], measured[:, :12], measured[:, -12:] = 2.0, 2.0, 2.0, 2.0
+    measured[50:130, 110:210] = 3.0
+    wall = [(np.array([0.0, 0.0, 1.0]), 3.0)]
+    free = dense_fill.fill(measured, grey, K, wall, FILL)
+    assert (free > 0).sum() > 20000 and np.allclose(free[free > 0], 3.0)
+    between = dataclasses.replace(FILL, rim_hull=0.0)
+    assert not dense_fill.fill(measured, grey, K, wall, between).any()
+    measured[50:130, 110:210] = 0.0
+    measured[20:160, 20:110], measured[20:160, 210:300] = 3.0, 3.0
+    filled = dense_fill.fill(measured, grey, K, wall, between)
+    assert (filled[21:159, 112:208] > 0).all() and not filled[:17].any()
 
 
 @pytest.mark.parametrize('field', ['lag', 'max_planes', 'max_holes'])
