@@ -92,4 +92,5 @@ def held_face(colour: str, corners_px: Array, last: targets.TargetDetection, age
         target_type='cube', name='cube', vertices_px=corners_px[kept].astype(np.float64),
         vertex_ids=last.vertex_ids[nearest[kept]].astype(np.int64),
         edges=np.array(edges, dtype=np.int64).reshape(-1, 2),
-        polygons=((colour, corners_px.astype(np.float64)),), score=last.score)
+        polygons=((colour, corners_px.astype(np.float64)),), score=last.score,
+        vertex_scores=np.full(len(kept), targets.HELD_SCORE))  # reported, kept out of the map

@@ -188,7 +188,7 @@ class CubeConfig:
     track_margin_px: float = 40.0
     track_max_area_frac: float = 0.5
     track_lost_wait: bool = True
-    hold_frames: int = 0
+    hold_frames: int = 4
     hold_shape_frac: float = 0.02
     hold_shape_px: float = 2.0
     hold_shift_frac: float = 0.25

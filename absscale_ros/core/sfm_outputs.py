@@ -166,8 +166,13 @@ def target_points(m: sfm_map.SfmMap, min_angle_deg: float = 0.0) -> TargetPoints
 def vertices_from_rows(rows: np.ndarray) -> vm.Vertices | None:
     """
     Detected vertices of one keyframe from ``detect.VERTEX_DTYPE``-like rows (fields u, v,
-    object_id, vertex_id, target_type), or None when there are none.
+    object_id, vertex_id, target_type, and optionally score), or None when there are none.
+    Vertices held from an earlier frame (``targets.HELD_SCORE``) are left out: a face alone
+    is not confirmed as the cube's, and two held corners 4 px off moved fresh outdoor 45's
+    scale by 0.8 mm/m (session 20).
     """
+    if rows.dtype.names and 'score' in rows.dtype.names:
+        rows = rows[rows['score'] >= 0.0]
     if len(rows) == 0:
         return None
     kinds = tuple('cube' if t == TARGET_TYPES['cube'] else 'sheet' for t in rows['target_type'])

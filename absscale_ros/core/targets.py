@@ -121,6 +121,9 @@ def cube_vertex_id(mask: int, ordinal: int) -> int:
     return (int(ordinal) << 3) | (int(mask) & 7)
 
 
+HELD_SCORE = -1.0  # a vertex held from an earlier frame (TargetDetection.vertex_scores)
+
+
 @dataclass(frozen=True, eq=False)
 class TargetDetection:
     """
@@ -138,7 +141,9 @@ class TargetDetection:
     :param vertex_scores: (N,) float64 per-vertex score in [0, 1], or None when every vertex
         has ``score``. A vertex not seen but extrapolated (a sheet corner hidden by an object
         or outside the image, ``sheet_partial``) scores at most 0.5: later stages can weigh or
-        drop it.
+        drop it. ``HELD_SCORE`` (negative): a vertex of a face held from an earlier frame's
+        cube (``cube_hold``), not confirmed as a cube in this frame: reported, but the map
+        leaves it out (``sfm_outputs.vertices_from_rows``).
     """
 
     target_type: str
