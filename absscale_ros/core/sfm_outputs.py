@@ -168,8 +168,8 @@ def vertices_from_rows(rows: np.ndarray) -> vm.Vertices | None:
     Detected vertices of one keyframe from ``detect.VERTEX_DTYPE``-like rows (fields u, v,
     object_id, vertex_id, target_type, and optionally score), or None when there are none.
     Vertices held from an earlier frame (``targets.HELD_SCORE``) are left out: a face alone
-    is not confirmed as the cube's, and two held corners 4 px off moved fresh outdoor 45's
-    scale by 0.8 mm/m (session 20).
+    is not confirmed as the cube's (in the map, held vertices moved fresh outdoor 43's scale
+    error -0.62 -> -0.40 mm/m and its Table 3 max 21.7 -> 28.1 mm/m; session 20).
     """
     if rows.dtype.names and 'score' in rows.dtype.names:
         rows = rows[rows['score'] >= 0.0]

@@ -14,7 +14,6 @@ import pytest
 
 BAG = Path(__file__).parents[2] / 'bags' / 'outdoor_cube_sample.mcap'
 CFG = detect_cube.CubeConfig()
-HOLD = replace(CFG, hold_frames=4)  # held faces: off by default (their vertices reach the map)
 SMALL = 20  # the cube at 0.29 % of the image: posed, under the paper's 0.5 %
 SEEN = range(92, 140)  # the cube seen in every frame
 LOST = 83  # the cube face-on, its top 3 px: no cube posed
@@ -126,7 +125,7 @@ def test_a_face_of_the_cube_found_a_frame_ago_is_reported(frames) -> None:
     images, K, gt = frames
     for k in HELD:  # alone, the frame poses no cube
         assert detect_cube.detect_cubes(images[k], CFG, K) == []
-    for hold in (HOLD.hold_frames, 0):
+    for hold in (CFG.hold_frames, 0):
         tracker = cube_track.CubeTracker(replace(CFG, hold_frames=hold))
         found = {k: tracker.detect(images[k], K) for k in FACE_SEEN}
         assert found[276]
@@ -158,20 +157,20 @@ def test_a_face_that_changed_shape_or_place_is_not(frames) -> None:
     face, = [f for f in faces if f.colour == 'purple']
     corners = face.corners_px
     shape = images[277].shape
-    det = cube_hold.held_face('purple', corners, last, 1, shape, HOLD)
+    det = cube_hold.held_face('purple', corners, last, 1, shape, CFG)
     assert det is not None
     # Listed from another corner or the other way round, each corner keeps its vertex's id
     # (a face matched to itself turned half way round swapped them; fresh outdoor 42).
     for other in (np.roll(corners, 2, axis=0), corners[::-1]):
-        again = cube_hold.held_face('purple', other, last, 1, shape, HOLD)
+        again = cube_hold.held_face('purple', other, last, 1, shape, CFG)
         ids = dict(zip(map(tuple, again.vertices_px), again.vertex_ids))
         assert ids == dict(zip(map(tuple, det.vertices_px), det.vertex_ids))
-    assert cube_hold.held_face('purple', corners, last, HOLD.hold_frames + 1, shape, HOLD) is None
-    assert cube_hold.held_face('yellow', corners, last, 1, shape, HOLD) is None
+    assert cube_hold.held_face('purple', corners, last, CFG.hold_frames + 1, shape, CFG) is None
+    assert cube_hold.held_face('yellow', corners, last, 1, shape, CFG) is None
     # A post moving over a tenth of the face: two corners 15 px inwards (the shape test lets
     # through about half that: 2 % of the side, the frame-to-frame change of a face seen whole).
     cut = corners.copy()
     cut[1:3] -= 0.1 * (corners[1] - corners[0])
-    assert cube_hold.held_face('purple', cut, last, 1, shape, HOLD) is None
+    assert cube_hold.held_face('purple', cut, last, 1, shape, CFG) is None
     far = corners + [150.0, 0.0]  # the same shape where the cube was not
-    assert cube_hold.held_face('purple', far, last, 1, shape, HOLD) is None
+    assert cube_hold.held_face('purple', far, last, 1, shape, CFG) is None
