@@ -230,15 +230,8 @@ def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
         monitor.discover()  # the pipeline's topics exist now: count them from the first message
         if options.record:
             monitor.record(options.record)
-        replay_params = params.node_params(sections, 'bag_replay')
-        replay_params.update(bag=str(bag), expect_nodes=','.join(names), mode=options.mode,
-                             rate=options.rate, observer=monitor.get_name(),
-                             observer_images=bool(options.record))
-        if children is not None:  # discovery across processes takes longer than in one
-            replay_params['startup_timeout_s'] = max(30.0, replay_params.get(
-                'startup_timeout_s', 5.0))
-        if options.live:
-            replay_params.update(mode='rate', qos='sensor_data')
+        replay_params = _replay_params(sections, bag, names, options, monitor.get_name(),
+                                       across_processes=children is not None)
         replay = BagReplayNode(context=context, parameter_overrides=_overrides(replay_params))
         if children is not None:
             # Matching across processes can lag discovery by seconds on a busy machine, and a
@@ -266,30 +259,8 @@ def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
         if children is not None:
             node_reports.update(children.stop())
         node_reports = {name: node_reports[name] for name in names if name in node_reports}
-        report = {
-            'bag': str(bag), 'config': str(config_path), 'wall_time_s': round(wall_s, 3),
-            'replay': {'mode': replay_params['mode'], 'live': options.live,
-                       'published': replay.published, 'total': replay.total,
-                       'steps': replay.steps, 'step_timeouts': replay.timeouts,
-                       'steps_deferred': replay.steps_deferred},
-            'nodes': node_reports,
-            **monitor.report(),
-            'latency_s': _latency(replay.published_at, monitor.cloud_updates,
-                                  node_reports.get('keyframe_selector', {}).get(
-                                      'keyframe_stamps_ns', []),
-                                  node_reports.get('sfm', {}).pop('timeline_ns', [])),
-            'frames_not_processed': _frames_not_processed(len(replay.published_at),
-                                                          node_reports),
-            # CPU s per process: which node used the machine (live runs share its cores).
-            'process_cpu_s': {'runner': round(time.process_time(), 2),
-                              **(children.cpu_s if children is not None else {})},
-            # ru_maxrss is in KiB on Linux; with --processes this is the runner alone.
-            'peak_rss_mb': round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
-            'rss_mb': memory,  # [wall s, frames replayed, resident MB] every MEMORY_PERIOD_S
-            'detections': list(monitor.detections),
-            '_latest': dict(monitor.latest),  # popped by the caller that writes files
-        }
-        return report
+        return _report(bag, config_path, wall_s, replay_params['mode'], options.live, replay,
+                       monitor, node_reports, children, memory)
     finally:
         if children is not None:
             children.stop()
@@ -304,6 +275,49 @@ def run_graph(bag: str, config: str, options: RunOptions = RunOptions(),
             lease.release() if children is None else children.reaped(lease.release)
         if cv_threads is not None:
             common.one_opencv_thread(cv_threads)  # as it was for whatever runs next here
+
+
+def _replay_params(sections: dict[str, dict[str, Any]], bag: str, names: list[str],
+                   options: RunOptions, observer: str, across_processes: bool) -> dict[str, Any]:
+    """The bag_replay node's parameters for this run: its config section, then the run's."""
+    values = params.node_params(sections, 'bag_replay')
+    values.update(bag=str(bag), expect_nodes=','.join(names), mode=options.mode,
+                  rate=options.rate, observer=observer, observer_images=bool(options.record))
+    if across_processes:  # discovery across processes takes longer than in one
+        values['startup_timeout_s'] = max(30.0, values.get('startup_timeout_s', 5.0))
+    if options.live:
+        values.update(mode='rate', qos='sensor_data')
+    return values
+
+
+def _report(bag: str, config_path: Any, wall_s: float, mode: str, live: bool,
+            replay: BagReplayNode, monitor: GraphMonitorNode, node_reports: dict[str, Any],
+            children: node_processes.NodeProcesses | None,
+            memory: list[list[float]]) -> dict[str, Any]:
+    """The run's report.json (before the caller pops ``_latest`` and writes the files)."""
+    return {
+        'bag': str(bag), 'config': str(config_path), 'wall_time_s': round(wall_s, 3),
+        'replay': {'mode': mode, 'live': live,
+                   'published': replay.published, 'total': replay.total,
+                   'steps': replay.steps, 'step_timeouts': replay.timeouts,
+                   'steps_deferred': replay.steps_deferred},
+        'nodes': node_reports,
+        **monitor.report(),
+        'latency_s': _latency(replay.published_at, monitor.cloud_updates,
+                              node_reports.get('keyframe_selector', {}).get(
+                                  'keyframe_stamps_ns', []),
+                              node_reports.get('sfm', {}).pop('timeline_ns', [])),
+        'frames_not_processed': _frames_not_processed(len(replay.published_at),
+                                                      node_reports),
+        # CPU s per process: which node used the machine (live runs share its cores).
+        'process_cpu_s': {'runner': round(time.process_time(), 2),
+                          **(children.cpu_s if children is not None else {})},
+        # ru_maxrss is in KiB on Linux; with --processes this is the runner alone.
+        'peak_rss_mb': round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
+        'rss_mb': memory,  # [wall s, frames replayed, resident MB] every MEMORY_PERIOD_S
+        'detections': list(monitor.detections),
+        '_latest': dict(monitor.latest),  # popped by the caller that writes files
+    }
 
 
 def _spin(executor: Any, replay: BagReplayNode, monitor: GraphMonitorNode,
