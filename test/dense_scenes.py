@@ -26,6 +26,16 @@ def _rendered(poses: list[np.ndarray], seed: int) -> tuple:
     return images, cam, poses, mesh
 
 
+def outdoor_views(poses: list[np.ndarray], seed: int = 3) -> tuple:
+    """(images bgr, camera, poses, mesh) of the outdoor plaza at 1280x720 from ``poses``."""
+    scene = scenes.build_scene('outdoor_cube', seed)
+    cam = simcam.make_camera(np.random.default_rng(seed), 1280, 720)
+    renderer = render.Renderer(scene, cam)
+    images = [np.clip(renderer.render(T).colour, 0, 255).astype(np.uint8)[..., ::-1].copy()
+              for T in poses]
+    return images, cam, poses, dense_evaluation.SceneMesh(scene.vertices_m, scene.triangles)
+
+
 def _target(seed: int) -> np.ndarray:
     w = scenes.build_scene('indoor_paper', seed).walk
     return np.array([w['target_x'], w['target_y'], w['target_z']])

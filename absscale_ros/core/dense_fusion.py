@@ -14,7 +14,8 @@ A keyframe also gets a plane-sweep depth map over its neighbours (``dense_sweep`
 resolution), which covers what its pairs cannot: where the camera moved along its view. Its
 points are kept where no pair of the keyframe has depth, and it votes for the pairs' points.
 Optionally (``dense_facade``) far planes fitted to a wide-baseline sweep fill what is left,
-and (``dense_fill``) plain holes get the plane of the points around them.
+(``dense_fill``) plain holes get the plane of the points around them, and (``dense_ground``)
+the ground beyond stereo's reach gets the near ground's plane.
 """
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -25,7 +26,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
-from absscale_ros.core import dense_cloud, dense_facade, dense_fill, dense_stereo, dense_sweep
+from absscale_ros.core import dense_cloud, dense_facade, dense_fill, dense_ground, dense_stereo, \
+    dense_sweep
 from absscale_ros.core.types import CameraModel
 
 FloatArray = npt.NDArray[np.float64]
@@ -75,6 +77,7 @@ class _Keyframe:
     planes: list[tuple[FloatArray, int]] = field(default_factory=list)  # far planes p (p.X = 1
     # in its camera) and the pixels that refined each
     filled: bool = False  # its cloud holds the plane fill of its plain holes (``dense_fill``)
+    # and of its ground (``dense_ground``)
 
 
 def _measured(kf: _Keyframe) -> list[dense_stereo.DepthMap]:
@@ -113,11 +116,13 @@ class DenseFusion:
     def __init__(self, stereo: dense_stereo.StereoConfig, fusion: FusionConfig,
                  sweep: dense_sweep.SweepConfig | None = None,
                  facade: dense_facade.FacadeConfig | None = None,
-                 fill: dense_fill.FillConfig | None = None) -> None:
+                 fill: dense_fill.FillConfig | None = None,
+                 ground: dense_ground.GroundConfig | None = None) -> None:
         self.stereo, self.cfg = stereo, fusion
         self.sweep = sweep or dense_sweep.SweepConfig()
         self.facade = facade or dense_facade.FacadeConfig()
         self.fill = fill or dense_fill.FillConfig()
+        self.ground = ground or dense_ground.GroundConfig()
         self._frames: dict[int, _Keyframe] = {}
         self.depth_computed = 0  # stereo pairs run so far (recomputations included)
         self.sweeps_computed = 0  # plane sweeps run so far
@@ -128,7 +133,8 @@ class DenseFusion:
     def add_keyframe(self, stamp_ns: int, image_bgr: np.ndarray, camera: CameraModel) -> None:
         """Keep a keyframe (at the working scale) until its pose is known."""
         image, cam = dense_stereo.working_image(image_bgr, camera, self.stereo)
-        fine = dense_facade.fine_view(image_bgr, camera) if self.facade.enabled else None
+        fine = dense_facade.fine_view(image_bgr, camera) \
+            if self.facade.enabled or self.ground.enabled else None
         self._frames[stamp_ns] = _Keyframe(image, cam, fine=fine)
 
     def update(self, poses: dict[int, FloatArray]) -> bool:
@@ -438,8 +444,12 @@ class DenseFusion:
         kf = self._frames[stamps[i]]
         keep_pts, keep_col = self._consistent(stamps, i, sorted(kf.depths))  # sweep after pairs
         kf.filled = self._fill_ready(stamps, i)
-        if kf.filled:  # plain holes on a plane around them
+        if kf.filled and self.fill.enabled:  # plain holes on a plane around them
             pts, colours = self._filled(stamps, i, np.concatenate(keep_pts))
+            keep_pts.append(pts)
+            keep_col.append(colours)
+        if kf.filled and self.ground.enabled:  # the ground beyond stereo's reach
+            pts, colours = self._grounded(stamps, i, np.concatenate(keep_pts))
             keep_pts.append(pts)
             keep_col.append(colours)
         return dense_cloud.clean(np.concatenate(keep_pts), np.concatenate(keep_col), self.cfg)
@@ -447,8 +457,8 @@ class DenseFusion:
     def _fill_pending(self, stamps: list[int], i: int) -> bool:
         """Whether keyframe ``i``'s plain holes are still to be filled, and so its cloud is
         still to be rebuilt whole (``_fill_ready``)."""
-        return self.fill.enabled and not self._frames[stamps[i]].filled and \
-            len(stamps) - 1 - i < self.fill.lag
+        return self._plane_fills() and not self._frames[stamps[i]].filled and \
+            len(stamps) - 1 - i < self._fill_lag()
 
     def _with_sweep(self, cloud: Any, stamps: list[int], i: int) -> Any:
         """
@@ -521,8 +531,17 @@ class DenseFusion:
         """Whether keyframe ``i``'s plain holes are filled: once ``fill.lag`` later keyframes
         exist, its neighbourhood (planes, votes) is whole; filled earlier, from the keyframes
         before it alone, planes fitted to one side's points filled indoor 65 wrongly."""
-        return self.fill.enabled and self._frames[stamps[i]].view is not None and \
-            len(stamps) - 1 - i >= self.fill.lag
+        return self._plane_fills() and self._frames[stamps[i]].view is not None and \
+            len(stamps) - 1 - i >= self._fill_lag()
+
+    def _plane_fills(self) -> bool:
+        """Whether a keyframe's cloud gets plane fills once its neighbourhood is whole."""
+        return self.fill.enabled or self.ground.enabled
+
+    def _fill_lag(self) -> int:
+        """Later keyframes needed before the plane fills (the longest lag of those on)."""
+        return max(self.fill.lag if self.fill.enabled else 0,
+                   self.ground.lag if self.ground.enabled else 0)
 
     def _filled(self, stamps: list[int], i: int,
                 kept: FloatArray) -> tuple[FloatArray, npt.NDArray[np.uint8]]:
@@ -533,6 +552,34 @@ class DenseFusion:
                                          self.fill)
         depth = dense_fill.fill(dense_fill.depth_image(kept, K, grey.shape), grey, K, planes,
                                 self.fill)
+        pts, v, u = dense_stereo.back_project(depth, K)
+        return pts, colour[v, u]
+
+    def _grounded(self, stamps: list[int], i: int,
+                  kept: FloatArray) -> tuple[FloatArray, npt.NDArray[np.uint8]]:
+        """Points (camera frame) and colours for keyframe ``i``'s ground beyond its ``kept``
+        points, on the near ground's plane where views around it agree (``dense_ground``)."""
+        cfg, kf = self.ground, self._frames[stamps[i]]
+        colour, grey, K = kf.view
+        nearby = self._neighbour_points(stamps, i, self.sweep.span, cfg.stride)
+        p = dense_ground.ground_plane(nearby, cfg)
+        none = np.zeros((0, 3)), np.zeros((0, 3), np.uint8)
+        if p is None:
+            return none
+        blocked = dense_fill.depth_image(kept, K, grey.shape) > 0
+        blocked = cv2.dilate(blocked.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+        blocked |= dense_ground.occupied(nearby, p, K, grey.shape, cfg.front_rel)
+        z = dense_ground.candidates(p, K, blocked, cfg)
+        if not z.any():
+            return none
+        views = dense_ground.check_views([self._frames[s].pose for s in stamps], i,
+                                         float(np.median(z[z > 0])), cfg)
+        if len(views) < cfg.fill_views:
+            return none
+        fine = (kf.fine[0].astype(np.float32),
+                [(self._frames[stamps[j]].fine[0].astype(np.float32), T) for j, T in views],
+                kf.fine[1])
+        depth = dense_ground.fill(grey, fine, K, blocked, p, cfg)
         pts, v, u = dense_stereo.back_project(depth, K)
         return pts, colour[v, u]
 

@@ -14,7 +14,8 @@ import time
 from typing import Any
 
 from absscale_ros import conversions
-from absscale_ros.core import dense_facade, dense_fill, dense_fusion, dense_stereo, dense_sweep
+from absscale_ros.core import dense_facade, dense_fill, dense_fusion, dense_ground, dense_stereo, \
+    dense_sweep
 from absscale_ros.nodes import common
 from nav_msgs.msg import Path
 import numpy as np
@@ -37,9 +38,10 @@ class DenseNode(Node):
         sweep = common.declare_config(self, dense_sweep.SweepConfig(), 'sweep')
         facade = common.declare_config(self, dense_facade.FacadeConfig(), 'facade')
         fill = common.declare_config(self, dense_fill.FillConfig(), 'fill')
+        ground = common.declare_config(self, dense_ground.GroundConfig(), 'ground')
         self.declare_parameter('enabled', True)  # read by `absscale run`: start this node?
         self._frame = self.declare_parameter('frame_id', 'map').value
-        self._fusion = dense_fusion.DenseFusion(stereo, fusion, sweep, facade, fill)
+        self._fusion = dense_fusion.DenseFusion(stereo, fusion, sweep, facade, fill, ground)
         self._camera: Any = None
         self._points = 0
         self._stamp_ns = 0  # of the latest path: the cloud's stamp

@@ -14,23 +14,24 @@ FloatArray = np.ndarray
 RADIUS_M = {'indoor_paper': 0.02, 'outdoor_cube': 0.05}
 
 
-def dense_configs(config: str) -> tuple[Any, Any, Any, Any, Any]:
-    """StereoConfig, FusionConfig, SweepConfig, FacadeConfig and FillConfig of a config's
-    ``dense``."""
+def dense_configs(config: str) -> tuple[Any, Any, Any, Any, Any, Any]:
+    """StereoConfig, FusionConfig, SweepConfig, FacadeConfig, FillConfig and GroundConfig of a
+    config's ``dense``."""
     from dataclasses import fields
-    from absscale_ros.core import dense_facade, dense_fill, dense_fusion, dense_stereo, \
-        dense_sweep
+    from absscale_ros.core import dense_facade, dense_fill, dense_fusion, dense_ground, \
+        dense_stereo, dense_sweep
     section = params.node_params(params.load_yaml(params.find_config(config)), 'dense')
     out = []
     for prefix, cls in (('stereo', dense_stereo.StereoConfig),
                         ('fusion', dense_fusion.FusionConfig),
                         ('sweep', dense_sweep.SweepConfig),
                         ('facade', dense_facade.FacadeConfig),
-                        ('fill', dense_fill.FillConfig)):
+                        ('fill', dense_fill.FillConfig),
+                        ('ground', dense_ground.GroundConfig)):
         names = {f.name for f in fields(cls)}
         out.append(cls(**{k.split('.', 1)[1]: v for k, v in section.items()
                           if k.startswith(prefix + '.') and k.split('.', 1)[1] in names}))
-    return out[0], out[1], out[2], out[3], out[4]
+    return out[0], out[1], out[2], out[3], out[4], out[5]
 
 
 def _keyframe_images(bag: str, stamps: set[int]) -> dict[int, np.ndarray]:

@@ -2,10 +2,9 @@
 import dataclasses
 import functools
 
-from absscale_ros.core import dense_evaluation, dense_facade, dense_fusion, dense_stereo, \
-    dense_sweep
-from absscale_ros.sim import camera as simcam
+from absscale_ros.core import dense_facade, dense_fusion, dense_stereo, dense_sweep
 from absscale_ros.sim import render, scenes
+import dense_scenes
 from keyframe_scenes import _look_at
 import numpy as np
 import pytest
@@ -27,12 +26,8 @@ def _facade_views() -> tuple:
     side = np.cross(n, [0.0, 0.0, 1.0])
     eye = centre + 40.0 * n
     eye[2] = 1.6
-    poses = [_look_at(eye + k * side, centre + k * side) for k in (-5.0, 0.0, 5.0)]
-    cam = simcam.make_camera(np.random.default_rng(3), 1280, 720)
-    renderer = render.Renderer(scene, cam)
-    images = [np.clip(renderer.render(T).colour, 0, 255).astype(np.uint8)[..., ::-1].copy()
-              for T in poses]
-    return images, cam, poses, dense_evaluation.SceneMesh(scene.vertices_m, scene.triangles)
+    return dense_scenes.outdoor_views([_look_at(eye + k * side, centre + k * side)
+                                       for k in (-5.0, 0.0, 5.0)])
 
 
 def test_far_planes_fill_the_facade_within_centimetres() -> None:
