@@ -18,7 +18,7 @@ Optionally (``dense_facade``) far planes fitted to a wide-baseline sweep fill wh
 the ground beyond stereo's reach gets the near ground's plane.
 """
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 from typing import Any, Callable
 
@@ -448,11 +448,18 @@ class DenseFusion:
             pts, colours = self._filled(stamps, i, np.concatenate(keep_pts))
             keep_pts.append(pts)
             keep_col.append(colours)
-        if kf.filled and self.ground.enabled:  # the ground beyond stereo's reach
-            pts, colours = self._grounded(stamps, i, np.concatenate(keep_pts))
-            keep_pts.append(pts)
-            keep_col.append(colours)
-        return dense_cloud.clean(np.concatenate(keep_pts), np.concatenate(keep_col), self.cfg)
+        ground = self._grounded(stamps, i, np.concatenate(keep_pts)) \
+            if kf.filled and self.ground.enabled else None  # the ground beyond stereo's reach
+        if ground is not None and not self.ground.apart:
+            keep_pts.append(ground[0])
+            keep_col.append(ground[1])
+            ground = None
+        cloud = dense_cloud.clean(np.concatenate(keep_pts), np.concatenate(keep_col), self.cfg)
+        if ground is None or not len(ground[0]):
+            return cloud
+        # its far rows are sparse by nature: the statistical test would take them for outliers
+        extra = dense_cloud.clean(*ground, replace(self.cfg, outlier_std=0.0))
+        return cloud + extra if extra.has_normals() else cloud
 
     def _fill_pending(self, stamps: list[int], i: int) -> bool:
         """Whether keyframe ``i``'s plain holes are still to be filled, and so its cloud is

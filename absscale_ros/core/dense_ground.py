@@ -52,6 +52,8 @@ class GroundConfig:
     window_px: int = 7  # correlation window of the check, px at full size
     enclosed_px: int = 48  # plain pixels only with agreeing texture within this above and
     # below, or left and right, px at full size (0: off)
+    apart: bool = True  # its points cleaned apart from the keyframe's others, without the
+    # statistical outlier removal (the far ground's rows are sparse, not outliers)
 
     def __post_init__(self) -> None:
         if self.lag < 0 or min(self.stride, self.plane_trials, self.span, self.views,
