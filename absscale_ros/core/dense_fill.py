@@ -13,6 +13,9 @@ the hole, not along one side (a desk top meets the wall along its back edge only
 get the plane's depth where that stays within the depths of the plane's rim points and, when
 ``rim_hull`` is set, near them: a plane known from one patch of a wall tilts, and the error
 grows with the distance from that patch (indoor 77's far wall: -6 to +6 cm across the view).
+A large hole (``inside_px``) takes only a plane some view measured inside it: a plain wall no
+view measured has only the outlines of the things before it on its rim, and their spill (an
+outline's depth given to the plain pixels beside it), through which a plane fits off the wall.
 Works in the keyframe's sweep view (undistorted, at the sweep's scale).
 """
 from dataclasses import dataclass
@@ -57,6 +60,9 @@ class FillConfig:
     rim_hull: float = -1.0  # filled only within the hull of the plane's rim points, grown by
     # this x its radius (a tilt's error grows with the distance from them; negative: off)
     max_slant_deg: float = 80.0  # a plane seen more obliquely (its depth runs away): no fill
+    inside_px: int = 0  # a hole whose core (its pixels window_px // 2 + 1 px from its
+    # outline) is at least this large takes only a plane some of the neighbourhood's points
+    # on it fall into (0: no test)
 
     def __post_init__(self) -> None:
         if self.min_px < 1 or self.rim_px < 1 or self.min_rim < 3 or self.stride < 1 or \
@@ -127,13 +133,15 @@ def _refit(points: FloatArray, inliers: Mask, tol: FloatArray) -> tuple[FloatArr
 
 
 def fill(measured: FloatArray, grey: np.ndarray, K: FloatArray,
-         planes: list[tuple[FloatArray, float]], cfg: FillConfig) -> FloatArray:
+         planes: list[tuple[FloatArray, float]], cfg: FillConfig,
+         nearby: FloatArray | None = None) -> FloatArray:
     """
     Depth for the plain holes of a keyframe's depth.
 
     :param measured: (h, w) the keyframe's depth in its sweep view (``depth_image``), m, 0
         where none; ``grey`` that view's float grey, ``K`` its intrinsics.
     :param planes: candidate planes in its camera (``scene_planes``).
+    :param nearby: the points the planes were fitted to (camera frame), for ``inside_px``.
     :returns: (h, w) z on the filled holes' planes, m; 0 elsewhere.
     """
     h, w = grey.shape
@@ -146,14 +154,55 @@ def fill(measured: FloatArray, grey: np.ndarray, K: FloatArray,
     areas = stats[1:, cv2.CC_STAT_AREA]
     order = [1 + k for k in np.argsort(-areas) if areas[k] >= cfg.min_px][:cfg.max_holes]
     rays = _rays(K, h, w)
+    seen = _seen_on_planes(nearby, K, (h, w), planes, cfg) \
+        if cfg.inside_px > 0 and nearby is not None else None
     out = np.zeros((h, w), np.float32)
     for label in order if planes else []:
         box = _box(stats[label], cfg.rim_px + 1, h, w)
         hole = labels[box] == label
-        z = _hole_depth(hole, measured[box], rays[box], (box, h, w), planes, cfg)
+        usable = planes if seen is None else _seen_inside(hole, seen[:, box[0], box[1]],
+                                                          planes, cfg)
+        z = _hole_depth(hole, measured[box], rays[box], (box, h, w), usable, cfg) \
+            if usable else None
         if z is not None:
             out[box][hole] = z
     return out
+
+
+def _seen_on_planes(points: FloatArray, K: FloatArray, shape: tuple[int, int],
+                    planes: list[tuple[FloatArray, float]],
+                    cfg: FillConfig) -> Mask:
+    """(planes, h, w): the pixels some of the neighbourhood's points on each plane fall on.
+    A plain wall no view measured leaves its plane's pixels empty there: the rim points of
+    its holes are then the outlines of things before it and their spill (an outline's depth
+    given to the plain pixels beside it), through which a plane fits off the wall (indoor
+    65, with ``sweep.min_aperture``: 4-5 cm too near)."""
+    h, w = shape
+    seen = np.zeros((len(planes), h, w), bool)
+    p = dense_stereo.transform(points, K)
+    front = p[:, 2] > 1e-6
+    p, points = p[front], points[front]
+    u = np.rint(p[:, 0] / p[:, 2]).astype(np.intp)
+    v = np.rint(p[:, 1] / p[:, 2]).astype(np.intp)
+    ok = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    u, v, points = u[ok], v[ok], points[ok]
+    for k, (n, d) in enumerate(planes):
+        on = np.abs(points @ n - d) <= cfg.plane_rel * points[:, 2]
+        seen[k, v[on], u[on]] = True
+    return seen
+
+
+def _seen_inside(hole: Mask, seen: Mask, planes: list[tuple[FloatArray, float]],
+                 cfg: FillConfig) -> list[tuple[FloatArray, float]]:
+    """The planes some of whose points fall into the hole's core: its pixels at least
+    ``window_px`` // 2 + 1 px from its outline (nearer, a view's spill beside the same outline
+    lands). All of them when the core is smaller than ``inside_px``: a small hole is bridged
+    by its rim."""
+    size = 2 * (cfg.window_px // 2 + 1) + 1
+    core = cv2.erode(hole.astype(np.uint8), np.ones((size, size), np.uint8)) > 0
+    if np.count_nonzero(core) < cfg.inside_px:
+        return planes
+    return [p for p, s in zip(planes, seen) if s[core].any()]
 
 
 def _rays(K: FloatArray, h: int, w: int) -> FloatArray:

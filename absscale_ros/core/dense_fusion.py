@@ -555,10 +555,10 @@ class DenseFusion:
         """Points (camera frame) and colours for keyframe ``i``'s plain holes among its
         ``kept`` points, on the planes of its neighbourhood's depth (``dense_fill``)."""
         colour, grey, K = self._frames[stamps[i]].view
-        planes = dense_fill.scene_planes(self._nearby_points(stamps, i, self.fill.stride),
-                                         self.fill)
+        nearby = self._nearby_points(stamps, i, self.fill.stride)
+        planes = dense_fill.scene_planes(nearby, self.fill)
         depth = dense_fill.fill(dense_fill.depth_image(kept, K, grey.shape), grey, K, planes,
-                                self.fill)
+                                self.fill, nearby)
         pts, v, u = dense_stereo.back_project(depth, K)
         return pts, colour[v, u]
 

@@ -145,6 +145,33 @@ def test_a_plane_is_not_extrapolated_beyond_its_rim_points() -> None:
     assert (filled[21:159, 112:208] > 0).all() and not filled[:17].any()
 
 
+def test_a_large_hole_takes_only_a_plane_some_view_measured_inside_it() -> None:
+    """
+    A plain wall that no view measured: its holes' rims hold only outlines (and, in stereo,
+    their spill), so the plane they lie on is not known to be the wall's. With ``inside_px``
+    a hole whose core is that large is filled only with a plane the neighbourhood's points
+    reach into; smaller holes are bridged as before.
+    """
+    _, grey, K, z, ids, measured = _view()
+    around = _points(measured, K)  # the views measured nothing inside the plain holes
+    planes = dense_fill.scene_planes(around, FILL)
+    strict = dataclasses.replace(FILL, inside_px=1000)
+    free = dense_fill.fill(measured, grey, K, planes, FILL)
+    blind = dense_fill.fill(measured, grey, K, planes, strict, around)
+    count, labels, stats, _ = cv2.connectedComponentsWithStats((free > 0).astype(np.uint8), 4)
+    large = [k for k in range(1, count) if stats[k, cv2.CC_STAT_AREA] > 4000]
+    assert large and not any(blind[labels == k].any() for k in large)
+    small = (labels > 0) & ~np.isin(labels, large)
+    assert np.array_equal(blind[small], free[small])  # small holes: as before
+    # Views that did measure the wall (a sparse sample of its true surface) let it be filled.
+    seen = np.where(np.isfinite(z), z, 0.0)
+    sampled = np.zeros_like(seen)
+    sampled[::8, ::8] = seen[::8, ::8]
+    filled = dense_fill.fill(measured, grey, K, planes, strict,
+                             np.concatenate([around, _points(sampled, K)]))
+    assert np.array_equal(filled, free)
+
+
 @pytest.mark.parametrize('field', ['lag', 'max_planes', 'max_holes'])
 def test_a_fill_config_that_cannot_fill_is_refused(field: str) -> None:
     """A negative lag, or no plane or hole to try, is a typo in a config, not a quiet no-op."""
