@@ -14,7 +14,8 @@ mostly shows the cube hidden or too oblique, where a whole search (the sharp pas
 split and blur retries on every region of the frame) cost the box's ~5 ms plus ~20 ms, the
 slowest frames of a video. A frame where nothing is found but one whole face the cube
 detected in the last ``hold_frames`` frames had, moved as a face moves (from the frame
-before, when that frame reported it so), reports that face (``cube_hold``).
+before, when that frame reported it so), reports that face (``cube_hold``), or failing that
+the seen corners of one such face a post or the border cuts along one side.
 """
 import cv2
 import numpy as np
@@ -67,15 +68,26 @@ class CubeTracker:
     def _held(self, faces: list[detect_cube.Face], shape: tuple[int, ...]
               ) -> list[targets.TargetDetection]:
         """Return the first whole face of ``faces`` that ``cube_hold`` finds a face of the
-        cubes last detected had, as a detection (none when there is none)."""
+        cubes last detected had, else the first face cut along one side (by a post or the
+        border) it so finds, as a detection (none when there is none)."""
         cfg = self._cfg
         min_area = cfg.min_area_frac * shape[0] * shape[1]
-        for f in faces:
-            if f.thin or f.runs_on or f.cut >= 0 or f.outside >= 0 or f.seen or \
-                    abs(cv2.contourArea(f.corners_px.astype(np.float32))) < min_area:
+        big = [f for f in faces if not (f.thin or f.outside >= 0 or f.seen) and
+               abs(cv2.contourArea(f.corners_px.astype(np.float32))) >= min_area]
+        for f in big:
+            if f.runs_on or f.cut >= 0:
                 continue
             for last in self._last:
                 det = cube_hold.held_face(f.colour, f.corners_px, last, self._age, shape, cfg)
+                if det is not None:
+                    return [det]
+        for f in big if cfg.hold_cut_ramp_px > 0.0 else ():
+            # (its seen sides sharp enough to fix its two seen corners)
+            if f.cut < 0 or f.ramp_px > cfg.hold_cut_ramp_px:
+                continue
+            for last in self._last:
+                det = cube_hold.held_cut_face(f.colour, f.corners_px, f.cut, last, self._age,
+                                              shape, cfg)
                 if det is not None:
                     return [det]
         return []

@@ -145,6 +145,10 @@ class CubeConfig:
     :param hold_scale_change: ... (a factor of its size); and only the corners that were
         vertices of that cube, within ``hold_vertex_px`` ...
     :param hold_vertex_px: ... px, are reported, with those vertices' ids.
+    :param hold_cut_ramp_px: so is a face cut along one side by a post or the image border,
+        when no whole face is, its seen sides ramping (25-75 %) over at most this many px: its
+        two seen corners, when that face's other two mapped onto the sides leaving them
+        (``cube_hold.held_cut_face``; 0: never).
     """
 
     hue_red_deg: tuple[float, float] = (340.0, 20.0)
@@ -195,6 +199,7 @@ class CubeConfig:
     hold_shift_px: float = 20.0
     hold_scale_change: float = 1.25
     hold_vertex_px: float = 1.5
+    hold_cut_ramp_px: float = 5.0
 
     def __post_init__(self) -> None:
         for name in ('hue_red_deg', 'hue_yellow_deg', 'hue_purple_deg'):
@@ -230,7 +235,8 @@ class CubeConfig:
                              'track_max_area_frac in (0, 1]')
         if self.hold_frames < 0 or min(self.hold_shape_frac, self.hold_shape_px,
                                        self.hold_shift_frac, self.hold_shift_px,
-                                       self.hold_vertex_px) < 0.0 or self.hold_scale_change < 1.0:
+                                       self.hold_vertex_px, self.hold_cut_ramp_px) < 0.0 or \
+                self.hold_scale_change < 1.0:
             raise ValueError('need hold_frames >= 0, hold tolerances >= 0 and '
                              'hold_scale_change >= 1')
         if not 1 <= self.min_faces <= 3:
