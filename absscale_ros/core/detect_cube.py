@@ -98,6 +98,10 @@ class CubeConfig:
     :param occluder_min_frac: ... on this fraction of the points read there ...
     :param occluder_max_tilt_deg: ... and it lies within this angle of the image's vertical
         (0: no side is looked at).
+    :param occluder_far_reach: when two sides of a face pass, only one whose edge also runs
+        on from this to this fraction of its length past both ends is (a post is tall; a cube
+        edge runs on only as far as the next face's side in line with it, or a seam); a face
+        with none or both such sides is dropped (0, 0: always).
     :param occluder_join_frac: two pieces of one colour, one cut along a post's edge, facing
         each other across it, are one face split by the post (``cube_occluder.join_pieces``)
         when their near corners lie within this fraction of the face's height (2 px at
@@ -181,6 +185,7 @@ class CubeConfig:
     occluder_reach: tuple[float, float] = (0.04, 0.2)
     occluder_min_frac: float = 0.6
     occluder_max_tilt_deg: float = 20.0
+    occluder_far_reach: tuple[float, float] = (0.2, 0.6)
     occluder_join_frac: float = 0.04
     occluder_join_aspect: float = 1.5
     cut_loose_ramp_px: float = 5.0
@@ -221,6 +226,9 @@ class CubeConfig:
                 0.0 < self.occluder_min_frac <= 1.0 and 0.0 <= self.occluder_max_tilt_deg < 90.0):
             raise ValueError('need 0 <= occluder_reach[0] < occluder_reach[1], occluder_min_frac '
                              'in (0, 1] and occluder_max_tilt_deg in [0, 90)')
+        if not 0.0 <= self.occluder_far_reach[0] <= self.occluder_far_reach[1]:
+            raise ValueError(f'need 0 <= occluder_far_reach[0] <= occluder_far_reach[1], got '
+                             f'{self.occluder_far_reach}')
         if self.cut_loose_ramp_px < 0.0 or not 0.0 <= self.tip_max_frac < 1.0:
             raise ValueError('need cut_loose_ramp_px >= 0 and tip_max_frac in [0, 1)')
         if not 0.0 <= self.fill_min_frac <= 1.0:
@@ -538,12 +546,22 @@ def _occluded(image_bgr: npt.NDArray[np.uint8],
     at = [f for f, k in enumerate(kept) if k is not None and k[3] is None and outs[f] < 0]
     if not at or cfg.occluder_max_tilt_deg <= 0.0:
         return {}
-    found = cube_occluder.occluder_sides_many(
-        image_bgr, np.stack([kept[f][0] for f in at]),  # type: ignore[index]
-        np.stack([kept[f][2] for f in at]),  # type: ignore[index]
-        np.stack([outside[4 * f:4 * f + 4] for f in at]), cfg.min_step, cfg.occluder_reach,
-        cfg.occluder_min_frac, cfg.occluder_max_tilt_deg)
-    return dict(zip(at, found))
+
+    def sides_of(faces: list[int], reach: tuple[float, float]) -> npt.NDArray[np.bool_]:
+        return cube_occluder.occluder_sides_many(
+            image_bgr, np.stack([kept[f][0] for f in faces]),  # type: ignore[index]
+            np.stack([kept[f][2] for f in faces]),  # type: ignore[index]
+            np.stack([outside[4 * f:4 * f + 4] for f in faces]), cfg.min_step, reach,
+            cfg.occluder_min_frac, cfg.occluder_max_tilt_deg)
+    found = dict(zip(at, sides_of(at, cfg.occluder_reach)))
+    two = [f for f in at if found[f].sum() > 1]
+    if two and cfg.occluder_far_reach[1] > 0.0:
+        # A cube edge in line with the next face's side (or a seam on the ground) runs on a
+        # little way too: the post's edge is the one that runs on far.
+        for f, far in zip(two, sides_of(two, cfg.occluder_far_reach)):
+            if (far & found[f]).sum() == 1:
+                found[f] = far & found[f]
+    return found
 
 
 def _real_sides(rough: list[tuple[str, Array, Array]], w: int, h: int, blurred: bool

@@ -4,13 +4,16 @@ A cube face a post cuts along its edge, held from the cube found a frame earlier
 scene (test/data/sim_cube_hold).
 """
 from dataclasses import replace
+from pathlib import Path
+import sys
 
 from absscale_ros.core import cube_hold, cube_track, detect_cube, targets
 import cv2
 import numpy as np
 import pytest
 
-from sim_cube_frames import DATA, errors, frames
+sys.path.insert(0, str(Path(__file__).parent))
+from sim_cube_frames import DATA, errors, frames  # noqa: E402
 
 FOLDER = 'sim_cube_hold'
 FOUND, CUT = 'outdoor_cube_72_170.jpg', ('outdoor_cube_72_171.jpg', 'outdoor_cube_72_172.jpg',

@@ -134,3 +134,15 @@ def test_a_face_with_one_corner_seen_names_its_colour_there():
     assert dets[0].vertex_ids[top] & 7 == 3  # red and yellow meet there
     assert 'yellow' in {c for c, _ in dets[0].polygons}
     assert not _cubes('outdoor_cube_68_237.jpg', tip_max_frac=0.0)[1]
+
+
+def test_of_two_sides_like_a_post_edge_the_one_running_on_far_is():
+    # 104/218: the post cuts the purple face along its right side; its left side runs on a
+    # fifth of its length too (the yellow top's side in line with it, a paving seam). Both
+    # sides taken for a post's edge dropped the face, and no cube was found.
+    fr, dets = _cubes('outdoor_cube_104_218.jpg')
+    det, = dets
+    err = sim_cube_frames.errors(fr, det)
+    assert len(err) >= 2 and (err[:, 0] < 1.0).all(), err
+    assert _off_px(fr, det).max() < 1.0  # no corner on the post
+    assert not _cubes('outdoor_cube_104_218.jpg', occluder_far_reach=(0.0, 0.0))[1]
