@@ -44,16 +44,19 @@ def similarity_residual(src: Array, dst: Array) -> float:
 
 
 def held_face(colour: str, corners_px: Array, last: targets.TargetDetection, age: int,
-              shape: tuple[int, ...], cfg: 'CubeConfig') -> targets.TargetDetection | None:
+              shape: tuple[int, ...], cfg: 'CubeConfig', moved: int = 0
+              ) -> targets.TargetDetection | None:
     """
     Return a cube detection of one whole face (colour, (4, 2) corners px) when ``last`` (the
     cube detected ``age`` frames ago, or a face of it held since, in the frame before) had a
     face of that colour this face moved from (see the module docstring), with the vertices
     that face's corners were (not those on the border of an image of ``shape``, as
-    ``cube_assembly``); else None. ``cfg``: its ``hold_*`` tolerances.
+    ``cube_assembly``); else None. ``cfg``: its ``hold_*`` tolerances; ``moved``: the frames
+    since ``last`` (the shift allowed; 0: ``age``).
     """
     if not 0 < age <= cfg.hold_frames:
         return None
+    moved = moved or age
     side = float(np.hypot(*(corners_px - np.roll(corners_px, -1, axis=0)).T).max())
     area = abs(cv2.contourArea(corners_px.astype(np.float32)))
     best: tuple[float, Array] | None = None  # (corners' spread px, that face's corners)
@@ -65,7 +68,7 @@ def held_face(colour: str, corners_px: Array, last: targets.TargetDetection, age
         ratio = area / max(abs(cv2.contourArea(then.astype(np.float32))), 1e-9)
         shift = corners_px.mean(axis=0) - then.mean(axis=0)
         if not (1.0 / cfg.hold_scale_change ** 2 <= ratio <= cfg.hold_scale_change ** 2) or \
-                float(np.hypot(*shift)) > cfg.hold_shift_frac * side + cfg.hold_shift_px * age:
+                float(np.hypot(*shift)) > cfg.hold_shift_frac * side + cfg.hold_shift_px * moved:
             continue
         if np.sign(cv2.contourArea(then.astype(np.float32), oriented=True)) != turn:
             then = then[::-1]  # listed the other way round: never a mirror image
@@ -83,7 +86,7 @@ def held_face(colour: str, corners_px: Array, last: targets.TargetDetection, age
 
 
 def held_cut_face(colour: str, corners_px: Array, cut: int, last: targets.TargetDetection,
-                  age: int, shape: tuple[int, ...], cfg: 'CubeConfig'
+                  age: int, shape: tuple[int, ...], cfg: 'CubeConfig', moved: int = 0
                   ) -> targets.TargetDetection | None:
     """
     Return ``held_face`` of a face cut along side ``cut`` (its corners ``cut`` and ``cut +
@@ -107,7 +110,7 @@ def held_cut_face(colour: str, corners_px: Array, cut: int, last: targets.Target
             then = then[::-1]
         for k in range(4):
             rolled = np.roll(then, -k, axis=0)
-            off = _cut_fit(rolled, seen, ends, a, b, age, cfg)
+            off = _cut_fit(rolled, seen, ends, a, b, moved or age, cfg)
             if off is not None and (best is None or off < best[0]):
                 best = off, rolled
     if best is None or best[0] > max(cfg.hold_shape_px, cfg.hold_shape_frac * whole):
@@ -116,14 +119,14 @@ def held_cut_face(colour: str, corners_px: Array, cut: int, last: targets.Target
                            shape, cfg)
 
 
-def _cut_fit(then: Array, seen: Array, ends: dict[int, Array], a: int, b: int, age: int,
+def _cut_fit(then: Array, seen: Array, ends: dict[int, Array], a: int, b: int, moved: int,
              cfg: 'CubeConfig') -> float | None:
     """
     Return how far px the corners ``then`` (4, 2) of a face, mapped by the similarity that
     takes its corners ``a``, ``b`` onto the ``seen`` (2, 2) corners of a cut face, put its
     other two corners off the lines from ``a`` and ``b`` through the cut's corners ``ends``
     (the larger), or None when that similarity scales, turns or shifts the face by more than
-    a face moves in ``age`` frames, or the cut's corners lie beyond those hidden corners.
+    a face moves in ``moved`` frames, or the cut's corners lie beyond those hidden corners.
     """
     src, dst = then[[a, b]], seen
     zs = complex(*(src[1] - src[0]))
@@ -134,7 +137,7 @@ def _cut_fit(then: Array, seen: Array, ends: dict[int, Array], a: int, b: int, a
     side = float(np.hypot(*(then - np.roll(then, -1, axis=0)).T).max())
     shift = float(np.hypot(*(dst.mean(axis=0) - src.mean(axis=0))))
     if not 1.0 / cfg.hold_scale_change <= abs(m) <= cfg.hold_scale_change or \
-            shift > cfg.hold_shift_frac * side + cfg.hold_shift_px * age:
+            shift > cfg.hold_shift_frac * side + cfg.hold_shift_px * moved:
         return None
     worst = 0.0
     for near, far in ((a, (a + 3) % 4), (b, (b + 1) % 4)):

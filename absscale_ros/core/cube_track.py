@@ -40,6 +40,7 @@ class CubeTracker:
         self._since_full = 0
         self._last: list[targets.TargetDetection] = []  # the cubes last detected ...
         self._age = 0  # ... this many frames ago
+        self._moved = 0  # frames since ``_last`` was set (a held face's: since that frame)
         self.box_frames = self.whole_frames = self.lost_frames = self.held_frames = 0
 
     def detect(self, image_bgr: npt.NDArray[np.uint8], K: Array | None = None,
@@ -52,16 +53,17 @@ class CubeTracker:
         small: list[targets.TargetDetection] = []
         out = self._search(image_bgr, K, half, faces, small)
         if out:
-            self._last, self._age = out, 0
+            self._last, self._age, self._moved = out, 0, 0
             return out
         self._age += 1
+        self._moved += 1
         if small:
             return out  # the cube posed, too small to report: no face of it either
         out = self._held(faces, image_bgr.shape)
         if out:
             # The next frame's face is matched to this one (a frame's motion), while the
             # frames are still counted from the cube's.
-            self._last = out
+            self._last, self._moved = out, 0
             self.held_frames += 1
         return out
 
@@ -78,7 +80,8 @@ class CubeTracker:
             if f.runs_on or f.cut >= 0:
                 continue
             for last in self._last:
-                det = cube_hold.held_face(f.colour, f.corners_px, last, self._age, shape, cfg)
+                det = cube_hold.held_face(f.colour, f.corners_px, last, self._age, shape, cfg,
+                                          self._moved)
                 if det is not None:
                     return [det]
         for f in big if cfg.hold_cut_ramp_px > 0.0 else ():
@@ -87,7 +90,7 @@ class CubeTracker:
                 continue
             for last in self._last:
                 det = cube_hold.held_cut_face(f.colour, f.corners_px, f.cut, last, self._age,
-                                              shape, cfg)
+                                              shape, cfg, self._moved)
                 if det is not None:
                     return [det]
         return []

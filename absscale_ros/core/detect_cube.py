@@ -143,7 +143,8 @@ class CubeConfig:
         the similarity that fits them best ...
     :param hold_shape_px: ... in px; its centre moved at most ``hold_shift_frac`` of its
         longest side ...
-    :param hold_shift_frac: ... plus ``hold_shift_px`` per frame since ...
+    :param hold_shift_frac: ... plus ``hold_shift_px`` per frame since (since the frame
+        before, when that frame held it) ...
     :param hold_shift_px: ... px; its area changed by at most ``hold_scale_change`` squared
         either way ...
     :param hold_scale_change: ... (a factor of its size); and only the corners that were
@@ -197,7 +198,7 @@ class CubeConfig:
     track_margin_px: float = 40.0
     track_max_area_frac: float = 0.5
     track_lost_wait: bool = True
-    hold_frames: int = 4
+    hold_frames: int = 8
     hold_shape_frac: float = 0.02
     hold_shape_px: float = 2.0
     hold_shift_frac: float = 0.25

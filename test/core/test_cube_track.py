@@ -174,3 +174,9 @@ def test_a_face_that_changed_shape_or_place_is_not(frames) -> None:
     assert cube_hold.held_face('purple', cut, last, 1, shape, CFG) is None
     far = corners + [150.0, 0.0]  # the same shape where the cube was not
     assert cube_hold.held_face('purple', far, last, 1, shape, CFG) is None
+    # Held frame after frame, a face may move as far as a face moves since the frame it was
+    # last held in, not since the cube was found.
+    side = float(np.hypot(*(corners - np.roll(corners, -1, axis=0)).T).max())
+    moved = corners + [CFG.hold_shift_frac * side + 2.5 * CFG.hold_shift_px, 0.0]
+    assert cube_hold.held_face('purple', moved, last, 3, shape, CFG) is not None
+    assert cube_hold.held_face('purple', moved, last, 3, shape, CFG, moved=1) is None
