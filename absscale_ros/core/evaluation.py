@@ -136,6 +136,44 @@ def landmark_truth(points_m: FloatArray, poses_m: FloatArray, frame_of_pose: lis
     return result
 
 
+def triangulate(observations: list[tuple[IntArray, FloatArray]], T_world_cams: FloatArray,
+                K: FloatArray) -> FloatArray:
+    """
+    (N, 3) linear least-squares point of each landmark's observations seen from the given
+    poses (here the true ones: what the observations alone are worth, without the map's poses).
+
+    :param observations: per landmark, (M,) frame indices into ``T_world_cams`` (F, 4, 4) and
+        (M, 2) undistorted px of the pinhole ``K``.
+    """
+    out = np.full((len(observations), 3), np.nan)
+    for i, (frames, uv) in enumerate(observations):
+        if len(frames) < 2:
+            continue
+        T = T_world_cams[np.asarray(frames, np.int64)]
+        R_cw = np.transpose(T[:, :3, :3], (0, 2, 1))
+        P = K @ np.concatenate([R_cw, -R_cw @ T[:, :3, 3:]], axis=2)  # (M, 3, 4)
+        uv = np.reshape(uv, (-1, 2))
+        A = np.concatenate([uv[:, :1] * P[:, 2] - P[:, 0], uv[:, 1:] * P[:, 2] - P[:, 1]])
+        A /= np.linalg.norm(A[:, :3], axis=1, keepdims=True)  # each row a distance in the image
+        X = np.linalg.svd(A)[2][-1]
+        if abs(X[3]) > 1e-12:
+            out[i] = X[:3] / X[3]
+    return out
+
+
+def cloud_scale_error(points_m: FloatArray, truth_m: FloatArray) -> float:
+    """
+    How much longer than true the cloud is, mm/m: 1000 (1 / s - 1) for the scale ``s`` of the
+    similarity that best aligns the landmarks with their true points (NaN with fewer than 3).
+    Against the trajectory's true factor this is the scale error the landmarks themselves see.
+    """
+    good = np.isfinite(truth_m).all(axis=1) & np.isfinite(points_m).all(axis=1)
+    if good.sum() < 3:
+        return float('nan')
+    s = align.umeyama(points_m[good], truth_m[good])[0]
+    return 1000.0 * (1.0 / s - 1.0)
+
+
 @dataclass(frozen=True)
 class LengthStats:
     """Table 3 of the paper: errors of reconstructed lengths, mm per metre."""

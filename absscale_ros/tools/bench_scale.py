@@ -7,7 +7,9 @@ true camera centres, and lengths between reconstructed landmarks with the length
 true points (the paper's Table 3, in mm per metre). A landmark's true point is the surface
 point behind its own observations (``evaluation.observed_truth``, the sfm's map read after the
 run); ``lengths_projected`` keeps the figures against the older truth, the landmark projected
-through the reconstructed keyframes (``evaluation.landmark_truth``).
+through the reconstructed keyframes (``evaluation.landmark_truth``). Where the error comes from
+(``_decomposition``): the cloud's own scale error against its landmarks' truth, the lengths
+without it, and the lengths of the same observations triangulated from the true poses.
 """
 import argparse
 import json
@@ -164,7 +166,27 @@ def _lengths(gt: dict[str, Any], msgs: dict[str, Any], idx: list[int],
                lengths=evaluation.length_errors(pts, truth, np.random.default_rng(0)).__dict__,
                lengths_projected=out['lengths'],
                landmarks_with_projected_truth=out['landmarks_with_truth'])
+    out.update(_decomposition(gt, pts, truth, seen, camera.K))
     return out
+
+
+def _decomposition(gt: dict[str, Any], pts: np.ndarray, truth: np.ndarray,
+                   seen: list[tuple[np.ndarray, np.ndarray]], K: np.ndarray) -> dict[str, Any]:
+    """
+    Where the Table 3 error comes from: the cloud's own scale error (against its landmarks'
+    truth, not the trajectory's), the lengths with it removed (the landmarks' shape alone),
+    and the lengths of the same landmarks triangulated from the true poses (the observations
+    alone, without the map's poses).
+    """
+    from absscale_ros.core import evaluation
+    cloud_error = evaluation.cloud_scale_error(pts, truth)
+    true_poses = np.array([f['T_world_cam'] for f in gt['frames']], np.float64)  # type: ignore
+    retriangulated = evaluation.triangulate(seen, true_poses, K)
+    return {'cloud_scale_error_mm_per_m': cloud_error,
+            'lengths_cloud_scale': evaluation.length_errors(
+                pts / (1.0 + cloud_error / 1000.0), truth, np.random.default_rng(0)).__dict__,
+            'lengths_true_poses': evaluation.length_errors(
+                retriangulated, truth, np.random.default_rng(0)).__dict__}
 
 
 def run(args: argparse.Namespace) -> int:

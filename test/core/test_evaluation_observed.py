@@ -80,3 +80,29 @@ def test_observed_truth_ignores_the_landmarks_error_and_rejects_two_surfaces() -
     truth = evaluation.observed_truth(obs, camera, _behind(gt))
     assert np.isnan(truth[:25]).all()
     assert np.linalg.norm(truth[25:] - points[25:], axis=1).max() < 2e-4
+
+
+def test_true_pose_triangulation_and_the_clouds_own_scale() -> None:
+    """What bench scale splits Table 3 into: the observations triangulated from the true poses
+    (the map's poses left out) land on the surface points they see, and a cloud 2 mm/m too
+    long, turned and moved, reads +2 mm/m with no length error once that is taken out."""
+    gt, points, px, _ = _scene()
+    camera = groundtruth.camera_from_json(gt['camera'])
+    poses = np.array([f['T_world_cam'] for f in gt['frames']])
+    obs = [(np.array(FRAMES), np.array([p[i] for p in px])) for i in range(len(points))]
+    obs[:5] = [(np.array(FRAMES[:1]), px[0][i:i + 1]) for i in range(5)]  # one view: none
+    again = evaluation.triangulate(obs, poses, camera.K)
+    assert np.isnan(again[:5]).all()
+    assert np.linalg.norm(again[5:] - points[5:], axis=1).max() < 1e-6  # exact pixels
+    # 0.5 px off in the last view moves them, by millimetres at these depths
+    obs[5:] = [(f, uv + [0.0, 0.5] * (np.arange(3) == 2)[:, None]) for f, uv in obs[5:]]
+    moved = np.linalg.norm(evaluation.triangulate(obs, poses, camera.K)[5:] - points[5:], axis=1)
+    assert 5e-4 < np.median(moved) < 0.05
+    R = Rotation.from_rotvec([0.1, -0.2, 0.3]).as_matrix()
+    cloud = 1.002 * points @ R.T + [1.0, -2.0, 0.5]
+    assert abs(evaluation.cloud_scale_error(cloud, points) - 2.0) < 1e-6
+    assert abs(evaluation.cloud_scale_error(points, points)) < 1e-9
+    rng = np.random.default_rng(0)
+    assert evaluation.length_errors(cloud, points, rng).mean > 1.9
+    assert evaluation.length_errors(cloud / 1.002, points, rng).max < 1e-6
+    assert np.isnan(evaluation.cloud_scale_error(cloud[:2], points[:2]))
