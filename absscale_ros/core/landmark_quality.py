@@ -1,8 +1,9 @@
 """
 Which landmarks of a map are well triangulated: enough views, a wide enough angle between
 them, a small reprojection error in every view, (``max_sigma_rel``) a small estimated
-position uncertainty and (``max_plane_rel``) a place on the surface its neighbours lie on. Only
-these are published, so that lengths measured between published points are trustworthy (the
+position uncertainty, (``max_plane_rel``) a place on the surface its neighbours lie on and
+(``max_incidence_deg``) a view of that surface from not too grazing an angle. Only these are
+published, so that lengths measured between published points are trustworthy (the
 paper's Table 3); the map itself keeps the rest (they still help register the next keyframes).
 
 The uncertainty is a surveyor's: the standard deviation along the worst axis of the point's
@@ -45,11 +46,18 @@ class CloudConfig:
     # its residuals stay small.
     max_plane_rel: float = 0.0
     plane_neighbours: int = 16
+    # Largest angle between the landmark's mean viewing direction and the normal of that same
+    # neighbours' plane, degrees (0: off). On a surface seen at a grazing angle (far floor)
+    # the texture is foreshortened, and differently in each view as the camera moves: the
+    # keypoint slides along the track, which the map fits as depth, along the ray and so
+    # nearly within the plane, where ``max_plane_rel`` cannot see it.
+    max_incidence_deg: float = 0.0
 
     def __post_init__(self) -> None:
         if self.min_observations < 2 or self.min_angle_deg < 0.0 or self.max_reproj_px <= 0.0 \
                 or self.max_sigma_rel < 0.0 or self.min_noise_px <= 0.0 or \
-                self.max_plane_rel < 0.0 or self.plane_neighbours < 3:
+                self.max_plane_rel < 0.0 or self.plane_neighbours < 3 or \
+                not 0.0 <= self.max_incidence_deg < 90.0:
             raise ValueError(f'bad cloud config {self}')
 
 
@@ -77,7 +85,8 @@ def well_triangulated(m: sfm_map.SfmMap, K: FloatArray, cfg: CloudConfig) -> lis
     err[~(p_cam[:, 2] > 0.0)] = np.inf
     ok = (np.maximum.reduceat(err, starts) <= cfg.max_reproj_px) & \
         (_widest_angles_deg(pts, T, counts, starts) >= cfg.min_angle_deg)
-    if (cfg.max_sigma_rel > 0.0 or cfg.max_plane_rel > 0.0) and ok.any():
+    surface = cfg.max_plane_rel > 0.0 or cfg.max_incidence_deg > 0.0
+    if (cfg.max_sigma_rel > 0.0 or surface) and ok.any():
         # each landmark's mean viewing distance, which both gates are relative to
         dist = np.add.reduceat(np.linalg.norm(pts - T[:, :3, 3], axis=1), starts) / counts
     if cfg.max_sigma_rel > 0.0 and ok.any():
@@ -87,23 +96,44 @@ def well_triangulated(m: sfm_map.SfmMap, K: FloatArray, cfg: CloudConfig) -> lis
         sub_starts = np.concatenate([[0], np.cumsum(sub)[:-1]])
         ok[ok] = sigma(T[rows], p_cam[rows], err[rows], K, sub, sub_starts,
                        cfg.min_noise_px) <= cfg.max_sigma_rel * scene
-    if cfg.max_plane_rel > 0.0 and ok.any():
+    if surface and ok.any():
         rows = np.flatnonzero(ok)
-        ok[rows] = plane_distance(pts[starts], rows, cfg.plane_neighbours) <= \
-            cfg.max_plane_rel * dist[rows]
+        off, normal = neighbours_plane(pts[starts], rows, cfg.plane_neighbours)
+        keep = np.ones(len(rows), bool)
+        if cfg.max_plane_rel > 0.0:
+            keep &= off <= cfg.max_plane_rel * dist[rows]
+        if cfg.max_incidence_deg > 0.0:
+            keep &= ~(incidence_cos(pts, T, starts, rows, normal) <
+                      np.cos(np.radians(cfg.max_incidence_deg)))
+        ok[rows] = keep
     return list(compress(ids, ok.tolist()))
 
 
-def plane_distance(points: FloatArray, rows: npt.NDArray[np.int64], neighbours: int
-                   ) -> FloatArray:
+def incidence_cos(pts: FloatArray, T: FloatArray, starts: npt.NDArray[np.int64],
+                  rows: npt.NDArray[np.int64], normal: FloatArray) -> FloatArray:
     """
-    (len(rows),) distance of each of ``points[rows]`` from the least-squares plane through its
-    ``neighbours`` nearest other points of ``points`` (N, 3).
+    (len(rows),) |cosine| between the unit ``normal`` (len(rows), 3) of each landmark ``rows``
+    and its mean viewing direction (observations grouped by landmark, as in
+    ``well_triangulated``): 1 head-on, 0 grazing; NaN where the normal is.
+    """
+    rays = pts - T[:, :3, 3]
+    rays /= np.maximum(np.linalg.norm(rays, axis=1, keepdims=True), 1e-12)
+    mean = np.add.reduceat(rays, starts)[rows]
+    return np.abs(np.sum(mean * normal, axis=1)) / \
+        np.maximum(np.linalg.norm(mean, axis=1), 1e-12)
+
+
+def neighbours_plane(points: FloatArray, rows: npt.NDArray[np.int64], neighbours: int
+                     ) -> tuple[FloatArray, FloatArray]:
+    """
+    The least-squares plane through the ``neighbours`` nearest other points of ``points``
+    (N, 3) of each of ``points[rows]``: (len(rows),) the point's distance from it and
+    (len(rows), 3) its unit normal (NaN with fewer than 3 other points).
     """
     from scipy.spatial import cKDTree
     k = min(neighbours, len(points) - 1)
     if k < 3:
-        return np.zeros(len(rows))
+        return np.zeros(len(rows)), np.full((len(rows), 3), np.nan)
     _, idx = cKDTree(points).query(points[rows], k + 1)
     # Each point finds itself (among its nearest): move it last and leave it out.
     idx = np.take_along_axis(idx, np.argsort(idx == rows[:, None], axis=1, kind='stable'),
@@ -112,7 +142,7 @@ def plane_distance(points: FloatArray, rows: npt.NDArray[np.int64], neighbours: 
     centre = nb.mean(axis=1)
     nb = nb - centre[:, None]
     normal = np.linalg.eigh(np.einsum('nki,nkj->nij', nb, nb))[1][:, :, 0]
-    return np.abs(np.sum((points[rows] - centre) * normal, axis=1))
+    return np.abs(np.sum((points[rows] - centre) * normal, axis=1)), normal
 
 
 def sigma(T: FloatArray, p_cam: FloatArray, err: FloatArray, K: FloatArray,
