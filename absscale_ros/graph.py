@@ -14,7 +14,6 @@ import time
 from typing import Any, Callable
 
 from absscale_ros import node_processes, params
-from absscale_ros.core import targets
 from absscale_ros.core.errors import AbsScaleError
 from absscale_ros.domains import DomainLease
 from absscale_ros.nodes import common
@@ -147,21 +146,6 @@ def _overrides(values: dict[str, Any]) -> list[Parameter]:
     return [Parameter(k, value=v) for k, v in values.items()]
 
 
-def detected_sheet(sections: dict[str, dict[str, Any]]) -> str:
-    """
-    The scale node's sheet under ``sheet: auto``: the one sheet the detector looks for, if it
-    looks for one only ('auto' otherwise). Corners fit A4 just as well when they are an A5 or
-    A6 card's (the same 1:sqrt(2) shape, half or a quarter the size): a detector looking for
-    letter passed an A6 card on a light desk (aspect 1.29-1.39 measured, 8 % allowed) and
-    'auto' scaled it as an A4 page, twice the truth with a 0.4 % sigma (s18 bag 63).
-    """
-    detector = params.node_params(sections, 'vertex_detector')
-    target = detector.get('target', 'auto')
-    if target in targets.SHEET_SIZES_M and not detector.get('sheet.other_sheets'):
-        return str(target)
-    return 'auto'
-
-
 # Runs in one process (benches) each get their own domain: the nodes of a finished run linger
 # in DDS discovery for a while and the lossless replay would wait for their acknowledgements.
 def _node_values(name: str, sections: dict[str, dict[str, Any]], names: list[str],
@@ -170,8 +154,8 @@ def _node_values(name: str, sections: dict[str, dict[str, Any]], names: list[str
     values = params.node_params(sections, name)
     if name == 'scale' and dense_enabled(sections):
         values['cloud_topic'] = SPARSE_METRIC_TOPIC
-    if name == 'scale' and values.get('sheet', 'letter') == 'auto':
-        values['sheet'] = detected_sheet(sections)
+    if name == 'scale':
+        values.update(params.scale_sheet(sections))
     if name == 'keyframe_selector' and 'vertex_detector' not in names:
         values['use_vertices'] = False  # no detector: frames alone decide
     if live:

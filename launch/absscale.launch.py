@@ -7,12 +7,15 @@ Start the absscale_ros graph on a machine with a full ROS 2 Jazzy install.
 Then feed it a camera driver, `ros2 bag play BAG`, or `video_source`.
 """
 import os
+from pathlib import Path
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
+
+from absscale_ros import params as params_module
 
 # Pipeline order; a node whose executable is not installed yet is skipped.
 NODES = ['frame_ingest', 'vertex_detector', 'keyframe_selector', 'sfm', 'scale']
@@ -30,6 +33,11 @@ def _nodes(context, *args, **kwargs):
     # With the dense node, it owns /scaled_cloud and the sparse metric cloud moves aside
     # (as `absscale run` does for `dense: enabled: true`).
     extra = {'scale': [{'cloud_topic': '/absscale/sparse_cloud_metric'}]} if dense else {}
+    # 'sheet: auto' scales by the detector's one sheet, as `absscale run` does
+    # (params.detected_sheet: an A6 card fits A4's shape).
+    sheet = params_module.scale_sheet(params_module.load_yaml(Path(params)))
+    if sheet:
+        extra.setdefault('scale', []).append(sheet)
     names = NODES + (['dense'] if dense else [])
     # Frames are 2.7 MB: a shared-memory segment that holds them whole, unless one is set.
     env = {} if os.environ.get('FASTRTPS_DEFAULT_PROFILES_FILE') else {
