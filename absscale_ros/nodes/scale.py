@@ -32,7 +32,9 @@ class ScaleNode(Node):
             ('frame_id', 'map'), ('min_change', 0.001), ('require_path', False),
             ('cloud_topic', '/scaled_cloud'), ('qos', 'reliable'), ('in_order', False)])}
         custom = tuple(p['sheet_size_m']) if min(p['sheet_size_m']) > 0 else None
-        # 'auto': letter or A4, whichever the reconstructed corners fit (a tie claims nothing).
+        # 'auto': letter or A4, whichever the reconstructed corners fit (a tie claims nothing);
+        # `absscale run` and the launch file narrow it to the detector's one sheet
+        # (params.scale_sheet: an A6 card has A4's shape).
         sizes = targets.sheet_sizes_m(p['sheet'], custom)
         self._sheet_m, self._sheet_alternatives = sizes[0], tuple(sizes[1:])
         self._cube_m = p['cube_edge_m']
