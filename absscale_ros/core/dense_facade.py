@@ -91,15 +91,33 @@ def fine_view(image_bgr: np.ndarray, camera: CameraModel) -> tuple[np.ndarray, F
 def far_views(poses: list[FloatArray], i: int, cfg: FacadeConfig,
               max_angle_deg: float) -> list[tuple[int, FloatArray]]:
     """Indices and T_view_kf of keyframe ``i``'s far views (baseline nearest the target)."""
-    target = cfg.baseline_ratio * np.sqrt(cfg.near_m * cfg.far_m)
+    return views_near_baseline(poses, i, cfg.baseline_ratio * np.sqrt(cfg.near_m * cfg.far_m),
+                               cfg.span, cfg.min_baseline_m, cfg.views, max_angle_deg)
+
+
+def views_near_baseline(poses: list[FloatArray], i: int, target_m: float, span: int,
+                        min_baseline_m: float, views: int, max_angle_deg: float = 180.0
+                        ) -> list[tuple[int, FloatArray]]:
+    """Indices and T_view_kf of up to ``views`` keyframes within ``span`` of keyframe ``i``
+    whose baselines come nearest ``target_m`` (by ratio), at least ``min_baseline_m``, turned
+    at most ``max_angle_deg``."""
     scored = []
-    for j in range(max(0, i - cfg.span), min(len(poses), i + cfg.span + 1)):
+    for j in range(max(0, i - span), min(len(poses), i + span + 1)):
         T = dense_stereo.relative_pose(poses[i], poses[j])
         b = float(np.linalg.norm(T[:3, 3]))
         angle = np.degrees(np.arccos(np.clip((np.trace(T[:3, :3]) - 1) / 2, -1, 1)))
-        if j != i and b >= cfg.min_baseline_m and angle <= max_angle_deg:
-            scored.append((abs(np.log(b / target)), j, T))
-    return [(j, T) for _, j, T in sorted(scored, key=lambda x: x[0])[:cfg.views]]
+        if j != i and b >= min_baseline_m and angle <= max_angle_deg:
+            scored.append((abs(np.log(b / target_m)), j, T))
+    return [(j, T) for _, j, T in sorted(scored, key=lambda x: x[0])[:views]]
+
+
+def plane_depth(p: FloatArray, K: FloatArray, shape: tuple[int, ...]) -> FloatArray:
+    """(h, w) z of the plane ``p`` (``p . X = 1``, camera frame) on each pixel of a pinhole
+    view, 0 where the ray misses it."""
+    h, w = shape
+    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    along = p[0] * (u - K[0, 2]) / K[0, 0] + p[1] * (v - K[1, 2]) / K[1, 1] + p[2]
+    return np.where(along > 1e-9, 1.0 / np.maximum(along, 1e-9), 0.0)
 
 
 def fit_planes(points: FloatArray, cfg: FacadeConfig,
@@ -272,10 +290,8 @@ def facade_fill(grey: Image32, others: list[tuple[Image32, FloatArray]], K: Floa
     """
     h, w = grey.shape
     out = np.zeros((h, w), np.float32)
-    uu, vv = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
     for p, region in planes:
-        along = p[0] * (uu - K[0, 2]) / K[0, 0] + p[1] * (vv - K[1, 2]) / K[1, 1] + p[2]
-        zp = np.where(along > 1e-9, 1.0 / np.maximum(along, 1e-9), 0.0)
+        zp = plane_depth(p, K, (h, w))
         cand = region & ~covered & (out == 0) & (zp >= cfg.near_m) & (zp <= cfg.far_m)
         if not cand.any():
             continue

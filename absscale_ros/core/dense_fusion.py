@@ -586,7 +586,7 @@ class DenseFusion:
         fine = (kf.fine[0].astype(np.float32),
                 [(self._frames[stamps[j]].fine[0].astype(np.float32), T) for j, T in views],
                 kf.fine[1])
-        depth = dense_ground.fill(grey, fine, K, blocked, p, cfg)
+        depth = dense_ground.fill(grey, fine, K, z, p, cfg)
         pts, v, u = dense_stereo.back_project(depth, K)
         return pts, colour[v, u]
 

@@ -86,21 +86,8 @@ def check_views(poses: list[FloatArray], i: int, depth_m: float,
     """Indices and T_view_kf of keyframe ``i``'s check views: baselines nearest
     ``baseline_ratio`` x ``depth_m``, at least ``min_baseline_m``."""
     target = max(cfg.baseline_ratio * depth_m, cfg.min_baseline_m)
-    scored = []
-    for j in range(max(0, i - cfg.span), min(len(poses), i + cfg.span + 1)):
-        T = dense_stereo.relative_pose(poses[i], poses[j])
-        b = float(np.linalg.norm(T[:3, 3]))
-        if j != i and b >= cfg.min_baseline_m:
-            scored.append((abs(np.log(b / target)), j, T))
-    return [(j, T) for _, j, T in sorted(scored, key=lambda x: x[0])[:cfg.views]]
-
-
-def plane_depth(p: FloatArray, K: FloatArray, shape: tuple[int, ...]) -> FloatArray:
-    """(h, w) z of the plane ``p`` on each pixel of a pinhole view, 0 where the ray misses."""
-    h, w = shape
-    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    along = p[0] * (u - K[0, 2]) / K[0, 0] + p[1] * (v - K[1, 2]) / K[1, 1] + p[2]
-    return np.where(along > 1e-9, 1.0 / np.maximum(along, 1e-9), 0.0)
+    return dense_facade.views_near_baseline(poses, i, target, cfg.span, cfg.min_baseline_m,
+                                            cfg.views)
 
 
 def occupied(points: FloatArray, p: FloatArray, K: FloatArray, shape: tuple[int, ...],
@@ -121,18 +108,17 @@ def occupied(points: FloatArray, p: FloatArray, K: FloatArray, shape: tuple[int,
 def candidates(p: FloatArray, K: FloatArray, blocked: Mask, cfg: GroundConfig) -> FloatArray:
     """The plane's z where a keyframe's ground may be filled (``blocked``: depth or
     something in front there), 0 elsewhere."""
-    z = plane_depth(p, K, blocked.shape)
+    z = dense_facade.plane_depth(p, K, blocked.shape)
     return np.where(~blocked & (z > 0) & (z <= cfg.far_m), z, 0.0)
 
 
-def fill(grey: np.ndarray, fine: dense_facade.Views, K: FloatArray, blocked: Mask,
+def fill(grey: np.ndarray, fine: dense_facade.Views, K: FloatArray, z: FloatArray,
          p: FloatArray, cfg: GroundConfig) -> FloatArray:
     """
-    The ground plane's z on the candidate pixels of the sweep view (``grey``, ``K``) where
-    the check views (``fine``: full-size reference, (view, T_view_kf) list, K) warped through
-    it agree; 0 elsewhere.
+    The ground plane's z on the candidate pixels of the sweep view (``grey``, ``K``; ``z``
+    as ``candidates`` gives) where the check views (``fine``: full-size reference,
+    (view, T_view_kf) list, K) warped through it agree; 0 elsewhere.
     """
-    z = candidates(p, K, blocked, cfg)
     if not z.any():
         return np.zeros(grey.shape, np.float32)
     check = replace(dense_facade.FacadeConfig(), near_m=float(z[z > 0].min()),

@@ -36,8 +36,8 @@ def _filled(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
               dense_stereo.relative_pose(poses[1], poses[k])) for k in (0, 2)]
     ref, K_fine = dense_facade.fine_view(images[1], cam)
     blocked = np.zeros(grey.shape, bool)
-    return dense_ground.fill(grey, (ref.astype(np.float32), views, K_fine), K, blocked, p,
-                             GROUND), K
+    z = dense_ground.candidates(p, K, blocked, GROUND)
+    return dense_ground.fill(grey, (ref.astype(np.float32), views, K_fine), K, z, p, GROUND), K
 
 
 def test_the_ground_is_filled_far_beyond_stereo_within_centimetres() -> None:
